@@ -1,0 +1,22 @@
+"""fastdet: fast classical vehicle detection (HOG + linear SVM, Numba kernels).
+
+Public API::
+
+    detector = fastdet.Detector()            # bundled model, default config
+    detections = detector(frame_bgr_uint8)   # Detections: xyxy, score
+"""
+
+from .config import DetectorConfig, load_config
+from .detect import Detector
+from .detections import Detections
+from .errors import ConfigError, FastdetError, InputError, ModelError
+from .features import FeatureOptions
+from .model import Model, load_model
+from .train import train
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ConfigError", "Detections", "Detector", "DetectorConfig", "FastdetError", "FeatureOptions",
+    "InputError", "Model", "ModelError", "load_config", "load_model", "train",
+]

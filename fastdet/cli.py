@@ -1,0 +1,226 @@
+"""The ``fastdet`` command line: parse, call the library, print.
+
+Every user-facing failure (a :class:`~fastdet.errors.FastdetError` or an
+``OSError``) becomes one line ``fastdet: error: ...`` on stderr and exit code 2;
+Ctrl-C exits with 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from .errors import FastdetError, InputError
+
+EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+def _add_model_options(parser):
+    parser.add_argument("--model", metavar="M", help="model file (.npz); default: bundled model")
+    parser.add_argument("--config", metavar="C", help="TOML config overriding built-in defaults")
+    parser.add_argument("--threads", type=int, metavar="T",
+                        help="threads for the kernels (default: NUMBA_NUM_THREADS, all cores)")
+
+
+def _detector(args):
+    from .config import load_config
+    from .detect import Detector
+
+    return Detector(model=args.model, config=load_config(args.config), threads=args.threads)
+
+
+def read_image(path):
+    """Read an image file as BGR uint8, with a one-line error if impossible."""
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"image not found: {path}")
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise InputError(f"cannot read {path} as an image")
+    return image
+
+
+# -- detect -----------------------------------------------------------------
+def cmd_detect(args):
+    from .viz import draw_detections, write_image
+
+    detector = _detector(args)
+    out_dir = Path(args.out_dir) if args.out_dir else None
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    for name in args.images:
+        image = read_image(name)
+        start = time.perf_counter()
+        detections = detector(image)
+        elapsed_ms = (time.perf_counter() - start) * 1e3
+        record = {"image": str(name), "boxes": detections.to_list(), "ms": round(elapsed_ms, 2)}
+        if out_dir is not None:
+            target = out_dir / Path(name).name
+            write_image(target, draw_detections(image, detections))
+            record["output"] = str(target)
+        print(json.dumps(record), flush=True)
+    return 0
+
+
+# -- eval -------------------------------------------------------------------
+def cmd_eval(args):
+    from .evaluate import evaluate, load_annotations
+
+    annotations = load_annotations(args.annotations)
+    detector = _detector(args)
+    image_dir = Path(args.image_dir)
+    results = {}
+    for name in sorted(annotations):
+        detections = detector(read_image(image_dir / name))
+        results[name] = (detections.xyxy, detections.score)
+    report = evaluate(results, annotations, iou_threshold=args.iou)
+    if args.json:
+        print(json.dumps(report.to_dict()))
+    else:
+        print(f"images {len(annotations)}  vehicles {report.n_gt}  "
+              f"TP {report.tp}  FP {report.fp}  FN {report.fn}")
+        print(f"precision {report.precision:.3f}  recall {report.recall:.3f}  "
+              f"AP{int(args.iou * 100)} {report.ap:.3f}  mean IoU {report.mean_iou:.3f}")
+    return 0
+
+
+# -- train ------------------------------------------------------------------
+def cmd_train(args):
+    from .features import FeatureOptions
+    from .train import train
+
+    channel = args.hog_channel
+    options = FeatureOptions(
+        color_space=args.color_space,
+        hog_channel=int(channel) if channel.isdigit() else channel,
+        orientations=args.orientations, pixels_per_cell=args.pixels_per_cell,
+        cells_per_block=args.cells_per_block, block_norm=args.block_norm,
+        spatial_size=args.spatial_size, hist_bins=args.hist_bins, use_hog=not args.no_hog)
+    model = train(args.data_dir, options=options, C=args.C, flip=not args.no_flip,
+                  n_folds=args.folds, extra_negatives=args.extra_negatives or (),
+                  log=lambda line: print(line, file=sys.stderr, flush=True))
+    model.save(args.out)
+    report = model.report
+    print(f"feature length {report['feature_length']}  crops {report['crops']}  "
+          f"train time {report['total_seconds']:.1f} s")
+    print(f"accuracy: random split {report['random_split']['accuracy']:.4f}  "
+          f"leak-free split {report['leak_free_split']['accuracy']:.4f}")
+    print(f"model written to {args.out}")
+    return 0
+
+
+# -- bench ------------------------------------------------------------------
+def cmd_bench(args):
+    from .bench import format_stages, format_table, run_benchmark
+    from .config import load_config
+    from .shared_data import data_dir
+
+    video = args.video or data_dir() / "test_video.mp4"
+    size = None
+    if args.size:
+        try:
+            width, height = (int(v) for v in args.size.lower().split("x"))
+        except ValueError:
+            raise InputError(f"--size must look like 1280x720, got {args.size!r}") from None
+        size = (width, height)
+    threads = args.threads or [1]
+    results, n_frames = run_benchmark(
+        video, frames=args.frames, threads=threads, size=size, repeat=args.repeat,
+        reference_frames=args.reference_frames, model=args.model, config=load_config(args.config),
+        log=lambda line: print(line, file=sys.stderr))
+    print(f"{n_frames} frames of {video}" + (f" resized to {args.size}" if size else ""))
+    print(format_table(results))
+    for result in results:
+        if result.stages:
+            print(format_stages(result))
+    return 0
+
+
+def build_parser():
+    """The argument parser of the ``fastdet`` command."""
+    from .features import COLOR_CODES, FeatureOptions
+    from .kernels.blocks import NORM_CODES
+
+    parser = argparse.ArgumentParser(
+        prog="fastdet", description="Fast classical vehicle detection (HOG + linear SVM).")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    detect = sub.add_parser("detect", help="detect vehicles in images; one JSON line per image")
+    detect.add_argument("images", nargs="+", metavar="IMAGE")
+    detect.add_argument("--out-dir", metavar="D", help="also write each image with boxes drawn")
+    _add_model_options(detect)
+    detect.set_defaults(handler=cmd_detect)
+
+    evaluate = sub.add_parser("eval", help="precision, recall, AP and IoU on annotated images")
+    evaluate.add_argument("annotations", metavar="ANNOTATIONS.json")
+    evaluate.add_argument("image_dir", metavar="IMAGE_DIR")
+    evaluate.add_argument("--iou", type=float, default=0.5, help="match threshold (default 0.5)")
+    evaluate.add_argument("--json", action="store_true", help="print the full report as JSON")
+    _add_model_options(evaluate)
+    evaluate.set_defaults(handler=cmd_eval)
+
+    defaults = FeatureOptions()
+    train = sub.add_parser("train", help="train a model on vehicles/ and non-vehicles/ crops")
+    train.add_argument("data_dir", metavar="DATA_DIR")
+    train.add_argument("--out", required=True, metavar="MODEL.npz")
+    train.add_argument("--color-space", default=defaults.color_space, choices=sorted(COLOR_CODES))
+    train.add_argument("--hog-channel", default=str(defaults.hog_channel),
+                       choices=["all", "gray", "0", "1", "2"])
+    train.add_argument("--orientations", type=int, default=defaults.orientations)
+    train.add_argument("--pixels-per-cell", type=int, default=defaults.pixels_per_cell)
+    train.add_argument("--cells-per-block", type=int, default=defaults.cells_per_block)
+    train.add_argument("--block-norm", default=defaults.block_norm, choices=sorted(NORM_CODES))
+    train.add_argument("--spatial-size", type=int, default=defaults.spatial_size,
+                       help="0 disables spatial features")
+    train.add_argument("--hist-bins", type=int, default=defaults.hist_bins,
+                       help="0 disables colour histograms")
+    train.add_argument("--no-hog", action="store_true", help="disable HOG features")
+    train.add_argument("--C", type=float, default=DEFAULT_C, help="LinearSVC regularisation")
+    train.add_argument("--no-flip", action="store_true", help="no horizontal-flip augmentation")
+    train.add_argument("--folds", type=int, default=5, help="leak-free split: contiguous folds")
+    train.add_argument("--extra-negatives", nargs="+", metavar="DIR",
+                       help="more folders of non-vehicle crops")
+    train.set_defaults(handler=cmd_train)
+
+    bench = sub.add_parser("bench", help="per-frame latency of fastdet and its peers")
+    bench.add_argument("--video", help="video to time (default: the shared test video)")
+    bench.add_argument("--frames", type=int, help="use the first N frames (default: all)")
+    bench.add_argument("--threads", type=int, nargs="+", metavar="T",
+                       help="thread counts to time fastdet with (default: 1)")
+    bench.add_argument("--size", metavar="WxH", help="resize frames first, e.g. 1920x1080")
+    bench.add_argument("--repeat", type=int, default=3, help="timed passes per frame")
+    bench.add_argument("--reference-frames", type=int, default=5,
+                       help="frames to time the slow reference on (0 skips it)")
+    bench.add_argument("--model", metavar="M", help="model file (default: bundled)")
+    bench.add_argument("--config", metavar="C", help="TOML config")
+    bench.set_defaults(handler=cmd_bench)
+    return parser
+
+
+#: LinearSVC regularisation of the bundled model.
+DEFAULT_C = 1e-3
+
+
+def main(argv=None):
+    """Entry point of the ``fastdet`` console script; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.handler(args)
+    except KeyboardInterrupt:
+        print("fastdet: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (FastdetError, OSError) as exc:
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"fastdet: error: {message}", file=sys.stderr)
+        return EXIT_ERROR
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,237 @@
+"""Detector configuration: dataclasses with built-in defaults, overridable from TOML.
+
+A TOML file only lists what it changes::
+
+    [search]
+    decision_threshold = 0.3
+
+    [[search.scales]]          # giving scales replaces the whole list
+    window = 64
+    overlap = 0.5
+    x = [0, 1280]
+    y = [380, 660]
+
+    [heat]
+    threshold = 2
+
+    [boxes]
+    min_size = 24
+
+Unknown sections or keys are rejected with their name.  Coordinates are in
+pixels of a ``search.reference_size`` frame (1280x720) and scaled
+proportionally for other frame sizes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+
+from .errors import ConfigError
+
+
+@dataclass(frozen=True)
+class ScaleConfig:
+    """One search scale.
+
+    Parameters
+    ----------
+    window : float
+        Window side in reference-frame pixels.
+    overlap : float
+        Fraction in [0, 1) by which neighbouring windows overlap; the step is
+        rounded to whole HOG cells.
+    x, y : tuple of float
+        ``[start, stop)`` of the region searched, in reference-frame pixels.
+    """
+
+    window: float
+    overlap: float
+    x: tuple
+    y: tuple
+
+    def __post_init__(self):
+        object.__setattr__(self, "x", tuple(self.x))
+        object.__setattr__(self, "y", tuple(self.y))
+        if not (isinstance(self.window, (int, float)) and self.window >= 8):
+            raise ConfigError(f"search.scales.window must be a number >= 8, got {self.window!r}")
+        if not (isinstance(self.overlap, (int, float)) and 0 <= self.overlap < 1):
+            raise ConfigError(f"search.scales.overlap must be in [0, 1), got {self.overlap!r}")
+        for name in ("x", "y"):
+            span = getattr(self, name)
+            if (len(span) != 2 or not all(isinstance(v, (int, float)) for v in span)
+                    or not span[0] < span[1]):
+                raise ConfigError(f"search.scales.{name} must be [start, stop] with start < stop, "
+                                  f"got {list(span)!r}")
+
+
+#: The five scales of the published pipeline this project starts from.
+DEFAULT_SCALES = (
+    ScaleConfig(32, 0.0, (320, 960), (396, 460)),
+    ScaleConfig(48, 0.5, (0, 1280), (360, 540)),
+    ScaleConfig(64, 0.5, (426, 853), (396, 648)),
+    ScaleConfig(112, 0.75, (0, 1280), (360, 630)),
+    ScaleConfig(128, 0.75, (0, 1280), (360, 630)),
+)
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """Where and how windows are searched and which count as hits.
+
+    Parameters
+    ----------
+    scales : tuple of ScaleConfig
+    reference_size : tuple of int
+        ``(width, height)`` the scale coordinates refer to.
+    decision_threshold : float
+        A window is a hit when its SVM margin exceeds this.
+    """
+
+    scales: tuple = DEFAULT_SCALES
+    reference_size: tuple = (1280, 720)
+    decision_threshold: float = 0.5
+
+    def __post_init__(self):
+        object.__setattr__(self, "scales", tuple(self.scales))
+        object.__setattr__(self, "reference_size", tuple(self.reference_size))
+        if not self.scales:
+            raise ConfigError("search.scales must list at least one scale")
+        size = self.reference_size
+        if len(size) != 2 or not all(isinstance(v, int) and v > 0 for v in size):
+            raise ConfigError(f"search.reference_size must be [width, height], got {list(size)!r}")
+        _number("search.decision_threshold", self.decision_threshold)
+
+
+@dataclass(frozen=True)
+class HeatConfig:
+    """How hit windows are merged.
+
+    Parameters
+    ----------
+    threshold : float
+        Pixels whose heat exceeds this belong to a vehicle.
+    weighting : {'count', 'area', 'margin'}
+        Heat each hit adds: 1; ``(64 / window side) ** 2`` (small windows count
+        more, as one published pipeline does); or its SVM margin above the
+        decision threshold.
+    connectivity : {4, 8}
+        Pixel connectivity of the labelling.
+    """
+
+    threshold: float = 1.0
+    weighting: str = "count"
+    connectivity: int = 8
+
+    def __post_init__(self):
+        _number("heat.threshold", self.threshold)
+        if self.weighting not in ("count", "area", "margin"):
+            raise ConfigError(f"heat.weighting must be 'count', 'area' or 'margin', "
+                              f"got {self.weighting!r}")
+        if self.connectivity not in (4, 8):
+            raise ConfigError(f"heat.connectivity must be 4 or 8, got {self.connectivity!r}")
+
+
+@dataclass(frozen=True)
+class BoxConfig:
+    """Sanity filters on the final boxes (reference-frame pixels).
+
+    Parameters
+    ----------
+    min_size : float
+        Boxes narrower or shorter than this are dropped.
+    min_aspect, max_aspect : float
+        Allowed width / height ratio.
+    horizon_y : float
+        Boxes lying entirely above this line (bottom edge <= it) are dropped.
+    """
+
+    min_size: float = 24.0
+    min_aspect: float = 0.5
+    max_aspect: float = 3.0
+    horizon_y: float = 380.0
+
+    def __post_init__(self):
+        for name in ("min_size", "min_aspect", "max_aspect", "horizon_y"):
+            _number(f"boxes.{name}", getattr(self, name))
+        if not 0 < self.min_aspect <= self.max_aspect:
+            raise ConfigError("boxes.min_aspect must be > 0 and <= boxes.max_aspect")
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Everything a :class:`fastdet.Detector` needs besides its model."""
+
+    search: SearchConfig = field(default_factory=SearchConfig)
+    heat: HeatConfig = field(default_factory=HeatConfig)
+    boxes: BoxConfig = field(default_factory=BoxConfig)
+
+    @classmethod
+    def from_dict(cls, data, extra_sections=()):
+        """Build from nested dicts (parsed TOML), defaults for what is missing.
+
+        Parameters
+        ----------
+        data : dict
+        extra_sections : iterable of str
+            Top-level sections other components own (ignored here, not rejected).
+        """
+        sections = {"search": SearchConfig, "heat": HeatConfig, "boxes": BoxConfig}
+        unknown = sorted(set(data) - set(sections) - set(extra_sections))
+        if unknown:
+            raise ConfigError(f"unknown config section(s): {', '.join(unknown)}")
+        built = {}
+        for name, section_cls in sections.items():
+            values = dict(data.get(name, {}))
+            if name == "search" and "scales" in values:
+                values["scales"] = tuple(_build(ScaleConfig, scale, "search.scales")
+                                         for scale in values["scales"])
+            built[name] = _build(section_cls, values, name)
+        return cls(**built)
+
+
+def _number(name, value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+
+
+def _build(section_cls, values, section):
+    if not isinstance(values, dict):
+        raise ConfigError(f"[{section}] must be a table")
+    known = {f.name for f in dataclasses.fields(section_cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ConfigError(f"unknown key(s) in [{section}]: {', '.join(unknown)}")
+    try:
+        return section_cls(**values)
+    except ConfigError:
+        raise
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"invalid [{section}]: {exc}") from None
+
+
+def read_toml(path):
+    """Parse a TOML file into a dict with a one-line error on failure."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file not found: {path}")
+    try:
+        with open(path, "rb") as handle:
+            return tomllib.load(handle)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path} is not valid TOML: {exc}") from None
+
+
+def load_config(path=None, extra_sections=("track",)):
+    """The detector configuration: defaults, overridden by a TOML file if given."""
+    if path is None:
+        return DetectorConfig()
+    return DetectorConfig.from_dict(read_toml(path), extra_sections)

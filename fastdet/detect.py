@@ -1,0 +1,447 @@
+"""The single-frame detector: scales -> kernels -> heat -> boxes.
+
+Python here only plans and orchestrates.  The region any scale searches is
+colour-converted once per frame; for each search scale its region of interest
+is then resized so that the scale's window becomes 64 pixels (OpenCV); the
+Numba kernels then compute the whole region's HOG
+cells and blocks once, and score every window of the scale from those maps
+(:mod:`fastdet.kernels.score`).  Hit windows are merged in a heat map over the
+hits' bounding region only, labelled, and filtered into boxes.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import cv2
+import numba
+import numpy as np
+
+from .config import DetectorConfig
+from .detections import Detections
+from .errors import InputError
+from .features import WINDOW, color_planes, histogram_bin_lut, hog_input, spatial_image
+from .kernels.blocks import normalize_blocks
+from .kernels.heat import accumulate_heat
+from .kernels.hog import cell_histograms
+from .kernels.label import component_boxes, component_max, label_components
+from .kernels.colour import tile_weight_sums
+from .kernels.score import add_hog_scores, add_spatial_scores, add_tile_window_sums, window_count
+from .model import Model, load_model
+
+#: Names of the timed stages, in pipeline order.
+STAGES = ("resize_convert", "cells", "blocks", "score", "heat", "label", "total")
+
+
+def as_bgr_frame(frame):
+    """Validate a frame and return it as a C-contiguous BGR uint8 (H, W, 3) array.
+
+    Grey (H, W) or (H, W, 1) frames are replicated to three channels and BGRA
+    (H, W, 4) frames drop their alpha channel.
+
+    Raises
+    ------
+    InputError
+        For anything that is not a uint8 image array of those shapes.
+    """
+    if not isinstance(frame, np.ndarray):
+        raise InputError(f"a frame must be a numpy array, got {type(frame).__name__}")
+    if frame.dtype != np.uint8:
+        raise InputError(f"a frame must be uint8 (BGR, 0-255), got {frame.dtype}")
+    if frame.ndim == 2 or (frame.ndim == 3 and frame.shape[2] == 1):
+        return cv2.cvtColor(np.ascontiguousarray(frame.reshape(frame.shape[:2])),
+                            cv2.COLOR_GRAY2BGR)
+    if frame.ndim == 3 and frame.shape[2] == 4:
+        return cv2.cvtColor(np.ascontiguousarray(frame), cv2.COLOR_BGRA2BGR)
+    if frame.ndim == 3 and frame.shape[2] == 3:
+        return np.ascontiguousarray(frame)
+    raise InputError(f"a frame must have shape (H, W), (H, W, 1), (H, W, 3) or (H, W, 4), "
+                     f"got {frame.shape}")
+
+
+@dataclass(frozen=True)
+class ScalePlan:
+    """One search scale laid out on a frame of a given size.
+
+    Attributes
+    ----------
+    roi : tuple of int
+        ``(x0, y0, x1, y1)`` searched region in frame pixels.
+    scaled_size : tuple of int
+        ``(width, height)`` the region is resized to.
+    step_cells : int
+        Window step in HOG cells.
+    grid : tuple of int
+        ``(ny, nx)`` windows.
+    boxes : ndarray of int32, shape (ny * nx, 4)
+        Every window of the scale in frame pixels, row-major over the grid.
+    heat_weight : float
+        Heat a hit adds under ``weighting = 'area'``: (64 / window side)**2.
+    """
+
+    roi: tuple
+    scaled_size: tuple
+    step_cells: int
+    grid: tuple
+    boxes: np.ndarray
+    heat_weight: float
+
+    @property
+    def n_windows(self):
+        return self.grid[0] * self.grid[1]
+
+
+def plan_scales(config, options, frame_size):
+    """Lay every configured scale out on a frame of ``(width, height)``.
+
+    Scale coordinates are given for ``config.search.reference_size`` and
+    scaled proportionally (window sides by the geometric mean of the two
+    axis factors).  Scales with no whole window in the frame are dropped.
+    """
+    width, height = frame_size
+    ref_w, ref_h = config.search.reference_size
+    kx, ky = width / ref_w, height / ref_h
+    k = math.sqrt(kx * ky)
+    ppc = options.pixels_per_cell
+    cells_per_window = WINDOW // ppc
+    plans = []
+    for scale in config.search.scales:
+        window = scale.window * k
+        x0 = int(np.clip(round(scale.x[0] * kx), 0, width))
+        x1 = int(np.clip(round(scale.x[1] * kx), 0, width))
+        y0 = int(np.clip(round(scale.y[0] * ky), 0, height))
+        y1 = int(np.clip(round(scale.y[1] * ky), 0, height))
+        factor = WINDOW / window
+        scaled_w, scaled_h = int(round((x1 - x0) * factor)), int(round((y1 - y0) * factor))
+        step_cells = max(1, int(round((1.0 - scale.overlap) * cells_per_window)))
+        ny = window_count(scaled_h // ppc, cells_per_window, step_cells)
+        nx = window_count(scaled_w // ppc, cells_per_window, step_cells)
+        if ny == 0 or nx == 0:
+            continue
+        fx, fy = scaled_w / (x1 - x0), scaled_h / (y1 - y0)
+        step_px = step_cells * ppc
+        px = np.arange(nx) * step_px
+        py = np.arange(ny) * step_px
+        gx1 = np.round(x0 + px / fx)
+        gx2 = np.round(x0 + (px + WINDOW) / fx)
+        gy1 = np.round(y0 + py / fy)
+        gy2 = np.round(y0 + (py + WINDOW) / fy)
+        boxes = np.empty((ny, nx, 4), dtype=np.int32)
+        boxes[..., 0] = gx1[None, :]
+        boxes[..., 1] = gy1[:, None]
+        boxes[..., 2] = gx2[None, :]
+        boxes[..., 3] = gy2[:, None]
+        plans.append(ScalePlan((x0, y0, x1, y1), (scaled_w, scaled_h), step_cells, (ny, nx),
+                               boxes.reshape(-1, 4), (WINDOW / window) ** 2))
+    return tuple(plans)
+
+
+@dataclass
+class PreparedFrame:
+    """A frame's searched region, colour-converted once for all scales."""
+
+    converted: np.ndarray | None  # uint8 (h, w, 3) in the model's colour space
+    grey: np.ndarray | None       # uint8 (h, w), only for grey HOG
+    origin: tuple                 # (x0, y0) of the region in the frame
+
+
+@dataclass
+class Hits:
+    """Windows whose SVM margin passed the decision threshold."""
+
+    boxes: np.ndarray      # int32 (N, 4) frame pixels
+    scores: np.ndarray     # float32 (N,) SVM margins
+    scale_index: np.ndarray  # int64 (N,) index into the frame's scale plans
+    windows_scored: int
+
+
+class Detector:
+    """HOG + linear-SVM vehicle detector for single frames.
+
+    Parameters
+    ----------
+    model : Model or str or Path, optional
+        A :class:`~fastdet.model.Model`, a model file, or ``None`` for the
+        bundled default.
+    config : DetectorConfig, optional
+        Search, heat and box settings; defaults built in.
+    threads : int, optional
+        Threads for the Numba kernels.  ``None`` keeps Numba's setting
+        (``NUMBA_NUM_THREADS``, all cores by default); 1 runs the serial
+        kernels.  OpenCV is set to the same count so the two thread pools
+        do not oversubscribe the cores.
+
+    Notes
+    -----
+    Frames are BGR uint8 arrays, OpenCV's convention (``cv2.imread`` and
+    ``cv2.VideoCapture`` return them); grey and BGRA frames are converted.
+    A frame smaller than the smallest window gives no boxes.
+
+    Examples
+    --------
+    >>> detector = Detector()                      # doctest: +SKIP
+    >>> detections = detector(cv2.imread("frame.jpg"))  # doctest: +SKIP
+    >>> detections.xyxy, detections.score          # doctest: +SKIP
+    """
+
+    def __init__(self, model=None, config=None, threads=None):
+        if not isinstance(model, Model):
+            model = load_model(model)
+        self.model = model
+        self.config = config or DetectorConfig()
+        if threads is not None:
+            if threads < 1:
+                raise InputError(f"threads must be at least 1, got {threads}")
+            threads = min(int(threads), numba.config.NUMBA_NUM_THREADS)
+            numba.set_num_threads(threads)
+            cv2.setNumThreads(threads)
+        self.threads = numba.get_num_threads() if threads is None else threads
+        self._parallel = self.threads > 1
+        options = model.options
+        self._options = options
+        hog_w, spatial_w, hist_w = model.split_weights()
+        self._hog_weights = np.ascontiguousarray(hog_w)
+        self._spatial_weights = np.ascontiguousarray(spatial_w)
+        if options.hist_bins:
+            bins = histogram_bin_lut(options.hist_bins)
+            self._hist_lut = np.ascontiguousarray(hist_w[:, bins], dtype=np.float32)
+        self._plans = {}
+        self._workspace = {}
+        self._hog_channels = model.layout.hog_channels
+        #: Seconds spent per stage (see ``STAGES``) in the last call.
+        self.timings = dict.fromkeys(STAGES, 0.0)
+
+    def plans(self, frame_size):
+        """The scale plans for frames of ``(width, height)`` (cached)."""
+        plans = self._plans.get(frame_size)
+        if plans is None:
+            plans = self._plans[frame_size] = plan_scales(self.config, self._options, frame_size)
+        return plans
+
+    # -- stage 1: windows ---------------------------------------------------
+    def _buffers(self, plan):
+        """Cell and block arrays of a scale, reused from frame to frame.
+
+        Fresh multi-megabyte arrays every frame would cost page faults;
+        callers get the arrays back filled, so the reuse is invisible.
+        """
+        buffers = self._workspace.get(plan.scaled_size)
+        if buffers is None:
+            o = self._options
+            ppc, cpb, channels = o.pixels_per_cell, o.cells_per_block, self._hog_channels
+            cells_y, cells_x = plan.scaled_size[1] // ppc, plan.scaled_size[0] // ppc
+            buffers = self._workspace[plan.scaled_size] = (
+                np.empty((cells_y, cells_x, channels, o.orientations), np.float32),
+                np.empty((cells_y - cpb + 1, cells_x - cpb + 1,
+                          channels * cpb * cpb * o.orientations), np.float32))
+        return buffers
+
+    def prepare(self, frame):
+        """Colour-convert the part of a frame any scale searches, once.
+
+        Returns
+        -------
+        PreparedFrame
+        """
+        plans = self.plans((frame.shape[1], frame.shape[0]))
+        if not plans:
+            return PreparedFrame(None, None, (0, 0))
+        x0 = min(plan.roi[0] for plan in plans)
+        y0 = min(plan.roi[1] for plan in plans)
+        x1 = max(plan.roi[2] for plan in plans)
+        y1 = max(plan.roi[3] for plan in plans)
+        converted, grey = color_planes(frame[y0:y1, x0:x1], self._options)
+        return PreparedFrame(converted, grey, (x0, y0))
+
+    def score_scale(self, prepared, plan):
+        """SVM margins of every window of one scale, shape ``plan.grid``.
+
+        Parameters
+        ----------
+        prepared : PreparedFrame
+            From :meth:`prepare`.
+        plan : ScalePlan
+            One of :meth:`plans` for the frame's size.
+        """
+        options = self._options
+        timings = self.timings
+        t0 = time.perf_counter()
+        ox, oy = prepared.origin
+        x0, y0, x1, y1 = plan.roi
+        region = (slice(y0 - oy, y1 - oy), slice(x0 - ox, x1 - ox))
+        converted = cv2.resize(prepared.converted[region], plan.scaled_size,
+                               interpolation=cv2.INTER_LINEAR)
+        grey = None
+        if prepared.grey is not None:
+            grey = cv2.resize(prepared.grey[region], plan.scaled_size,
+                              interpolation=cv2.INTER_LINEAR)
+        t1 = time.perf_counter()
+        timings["resize_convert"] += t1 - t0
+        scores = np.full(plan.grid, self.model.bias, dtype=np.float32)
+        step_px = plan.step_cells * options.pixels_per_cell
+        if options.use_hog:
+            ppc, cpb = options.pixels_per_cell, options.cells_per_block
+            buffers = self._buffers(plan)
+            cells = cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
+                                    options.orientations, parallel=self._parallel,
+                                    out=buffers[0])
+            t2 = time.perf_counter()
+            blocks = normalize_blocks(cells, (cpb, cpb), options.block_norm,
+                                      parallel=self._parallel, out=buffers[1])
+            t3 = time.perf_counter()
+            timings["cells"] += t2 - t1
+            timings["blocks"] += t3 - t2
+            t1 = t3
+            add_hog_scores(blocks, self._hog_weights, plan.step_cells, scores,
+                           parallel=self._parallel)
+        if options.spatial_size:
+            factor = WINDOW // options.spatial_size
+            add_spatial_scores(spatial_image(converted, options), self._spatial_weights,
+                               step_px // factor, scores)
+        if options.hist_bins:
+            tile = math.gcd(step_px, WINDOW)
+            add_tile_window_sums(tile_weight_sums(converted, self._hist_lut, tile), WINDOW // tile,
+                                 step_px // tile, scores)
+        timings["score"] += time.perf_counter() - t1
+        return scores
+
+    def hits(self, frame):
+        """Every window whose margin exceeds ``search.decision_threshold``.
+
+        Parameters
+        ----------
+        frame : ndarray
+            BGR uint8 image (see :func:`as_bgr_frame`).
+
+        Returns
+        -------
+        Hits
+        """
+        frame = as_bgr_frame(frame)
+        for stage in STAGES:
+            self.timings[stage] = 0.0
+        threshold = self.config.search.decision_threshold
+        boxes, scores, scales = [], [], []
+        scored = 0
+        t0 = time.perf_counter()
+        prepared = self.prepare(frame)
+        self.timings["resize_convert"] += time.perf_counter() - t0
+        for index, plan in enumerate(self.plans((frame.shape[1], frame.shape[0]))):
+            grid = self.score_scale(prepared, plan).ravel()
+            scored += grid.size
+            hit = np.flatnonzero(grid > threshold)
+            if hit.size:
+                boxes.append(plan.boxes[hit])
+                scores.append(grid[hit])
+                scales.append(np.full(hit.size, index, dtype=np.int64))
+        if not boxes:
+            return Hits(np.zeros((0, 4), np.int32), np.zeros(0, np.float32),
+                        np.zeros(0, np.int64), scored)
+        return Hits(np.concatenate(boxes), np.concatenate(scores), np.concatenate(scales), scored)
+
+    def heat_weights(self, hits, frame_size):
+        """Heat each hit adds, per ``heat.weighting``."""
+        weighting = self.config.heat.weighting
+        if weighting == "count":
+            return np.ones(len(hits.scores), dtype=np.float32)
+        if weighting == "margin":
+            return (hits.scores - self.config.search.decision_threshold).astype(np.float32)
+        plans = self.plans(frame_size)
+        per_scale = np.array([plan.heat_weight for plan in plans], dtype=np.float32)
+        return per_scale[hits.scale_index] if len(hits.scores) else np.zeros(0, np.float32)
+
+    def heat_region(self, hits, frame_size):
+        """Heat of the hits over their bounding region.
+
+        Returns
+        -------
+        heat : ndarray of float32, shape (y1 - y0, x1 - x0)
+        origin : tuple of int
+            ``(x0, y0)`` of the region in the frame.
+        """
+        width, height = frame_size
+        if len(hits.scores) == 0:
+            return np.zeros((0, 0), np.float32), (0, 0)
+        x0 = max(int(hits.boxes[:, 0].min()), 0)
+        y0 = max(int(hits.boxes[:, 1].min()), 0)
+        x1 = min(int(hits.boxes[:, 2].max()), width)
+        y1 = min(int(hits.boxes[:, 3].max()), height)
+        shifted = hits.boxes - np.array([x0, y0, x0, y0], dtype=np.int32)
+        heat = accumulate_heat(shifted, self.heat_weights(hits, frame_size), y1 - y0, x1 - x0)
+        return heat, (x0, y0)
+
+    def heatmap(self, frame):
+        """Full-frame heat map of one frame (float32, frame height x width)."""
+        frame = as_bgr_frame(frame)
+        size = (frame.shape[1], frame.shape[0])
+        heat, (x0, y0) = self.heat_region(self.hits(frame), size)
+        full = np.zeros(frame.shape[:2], dtype=np.float32)
+        full[y0:y0 + heat.shape[0], x0:x0 + heat.shape[1]] = heat
+        return full
+
+    # -- stage 2: boxes -----------------------------------------------------
+    def boxes_from_heat(self, heat, origin, frame_size):
+        """Threshold, label and filter a heat map into detections.
+
+        Parameters
+        ----------
+        heat : ndarray of float32, shape (h, w)
+            Heat over a region of the frame.
+        origin : tuple of int
+            ``(x0, y0)`` of that region in the frame.
+        frame_size : tuple of int
+            ``(width, height)`` of the frame, for the size-relative filters.
+        """
+        if heat.size == 0:
+            return Detections.empty()
+        labels, count = label_components(heat > self.config.heat.threshold,
+                                         self.config.heat.connectivity)
+        if count == 0:
+            return Detections.empty()
+        boxes = component_boxes(labels, count)
+        peaks = component_max(labels, count, heat)
+        boxes += np.array([origin[0], origin[1], origin[0], origin[1]], dtype=np.int32)
+        keep = self.box_filter(boxes, frame_size)
+        return Detections(boxes[keep], peaks[keep])
+
+    def box_filter(self, boxes, frame_size):
+        """Boolean mask of the boxes that pass the ``[boxes]`` sanity filters."""
+        cfg = self.config.boxes
+        ref_w, ref_h = self.config.search.reference_size
+        kx, ky = frame_size[0] / ref_w, frame_size[1] / ref_h
+        k = math.sqrt(kx * ky)
+        width = boxes[:, 2] - boxes[:, 0]
+        height = boxes[:, 3] - boxes[:, 1]
+        aspect = width / np.maximum(height, 1)
+        return ((width >= cfg.min_size * k) & (height >= cfg.min_size * k)
+                & (aspect >= cfg.min_aspect) & (aspect <= cfg.max_aspect)
+                & (boxes[:, 3] > cfg.horizon_y * ky))
+
+    def __call__(self, frame):
+        """Detect vehicles in one frame.
+
+        Parameters
+        ----------
+        frame : ndarray of uint8, shape (H, W, 3)
+            BGR image (grey and BGRA accepted, see :func:`as_bgr_frame`).
+
+        Returns
+        -------
+        Detections
+        """
+        start = time.perf_counter()
+        frame = as_bgr_frame(frame)
+        size = (frame.shape[1], frame.shape[0])
+        hits = self.hits(frame)
+        t0 = time.perf_counter()
+        heat, origin = self.heat_region(hits, size)
+        t1 = time.perf_counter()
+        detections = self.boxes_from_heat(heat, origin, size)
+        end = time.perf_counter()
+        self.timings["heat"] = t1 - t0
+        self.timings["label"] = end - t1
+        self.timings["total"] = end - start
+        self.last_windows_scored = hits.windows_scored
+        return detections

@@ -1,0 +1,140 @@
+"""Block normalisation of cell histograms (the block stage of HOG).
+
+Blocks of ``cpb_y x cpb_x`` cells, stepped one cell at a time, are normalised
+per channel with one of scikit-image's four schemes.  The output keeps every
+block's features contiguous, ordered ``(channel, cell_y, cell_x, bin)``, so a
+detection window is ``blocks[by:by + n, bx:bx + n]`` read row by row: the same
+order the training features use (see ``fastdet.features``).
+"""
+
+import numpy as np
+from numba import njit, prange, uint64
+
+from .hog import _output
+
+#: Codes of the normalisation schemes, by scikit-image name.
+NORM_CODES = {"L1": 0, "L1-sqrt": 1, "L2": 2, "L2-Hys": 3}
+
+#: scikit-image's epsilon in ``_hog_normalize_block``.
+EPS = 1e-5
+
+
+# Reassociation lets LLVM vectorise the short reductions; the results differ
+# from strict left-to-right summation only at float32 rounding level.
+_FASTMATH = {"reassoc", "nsz", "contract"}
+
+
+@njit(cache=True, fastmath=_FASTMATH)
+def _cell_energy(cells, norm_code, energy):
+    """Per cell and channel: sum of |v| (L1 norms) or of v**2 (L2 norms)."""
+    n_y, n_x, channels, nbins = cells.shape
+    for cy in range(n_y):
+        for cx in range(n_x):
+            for c in range(channels):
+                total = np.float32(0.0)
+                for b in range(nbins):
+                    v = cells[cy, cx, c, b]
+                    total += abs(v) if norm_code <= 1 else v * v
+                energy[cy, cx, c] = total
+
+
+@njit(cache=True, fastmath=_FASTMATH)
+def _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, out):
+    """Normalise every block whose top-left cell is in cell row ``by``.
+
+    Works on flat rows with unsigned indices: Numba's negative-index
+    wraparound would otherwise keep LLVM from vectorising the copies.
+    """
+    n_cells_x, channels, nbins = cells.shape[1], cells.shape[2], cells.shape[3]
+    cell_len = uint64(channels * nbins)
+    nb = uint64(nbins)
+    per_channel = uint64(cpb_y * cpb_x * nbins)
+    block_len = uint64(channels) * per_channel
+    eps32 = np.float32(eps)
+    eps_sq = np.float32(eps * eps)
+    clip = np.float32(0.2)
+    dest_row = out[by].reshape(out.shape[1] * out.shape[2])
+    src_all = cells.reshape(cells.size)
+    row_len = uint64(n_cells_x) * cell_len
+    for bx in range(uint64(out.shape[1])):
+        for c in range(uint64(channels)):
+            total = np.float32(0.0)
+            for cy in range(cpb_y):
+                for cx in range(uint64(cpb_x)):
+                    total += energy[by + cy, bx + cx, c]
+            if norm_code <= 1:
+                inv = np.float32(1.0) / (total + eps32)
+            else:
+                inv = np.float32(1.0) / np.sqrt(total + eps_sq)
+            base = bx * block_len + c * per_channel
+            n = base
+            for cy in range(uint64(cpb_y)):
+                for cx in range(uint64(cpb_x)):
+                    src = (uint64(by) + cy) * row_len + (bx + cx) * cell_len + c * nb
+                    for b in range(nb):
+                        dest_row[n + b] = src_all[src + b] * inv
+                    n += nb
+            if norm_code == 1:
+                for i in range(base, base + per_channel):
+                    dest_row[i] = np.sqrt(dest_row[i])
+            elif norm_code == 3:
+                total = np.float32(0.0)
+                for i in range(base, base + per_channel):
+                    v = min(dest_row[i], clip)
+                    dest_row[i] = v
+                    total += v * v
+                inv = np.float32(1.0) / np.sqrt(total + eps_sq)
+                for i in range(base, base + per_channel):
+                    dest_row[i] *= inv
+
+
+@njit(cache=True)
+def _normalize_serial(cells, energy, cpb_y, cpb_x, norm_code, eps, out):
+    for by in range(out.shape[0]):
+        _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, out)
+
+
+@njit(cache=True, parallel=True)
+def _normalize_parallel(cells, energy, cpb_y, cpb_x, norm_code, eps, out):
+    for by in prange(out.shape[0]):
+        _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, out)
+
+
+def normalize_blocks(cells, cells_per_block, norm, eps=EPS, parallel=False, out=None):
+    """Normalise overlapping blocks of cells.
+
+    Parameters
+    ----------
+    cells : ndarray of float32, shape (Hc, Wc, C, nbins)
+        Cell histograms from :func:`fastdet.kernels.hog.cell_histograms`.
+    cells_per_block : tuple of int
+        ``(cpb_y, cpb_x)``.
+    norm : {'L1', 'L1-sqrt', 'L2', 'L2-Hys'}
+        scikit-image's block normalisation schemes.
+    eps : float
+        Regulariser, as in scikit-image.
+    parallel : bool
+        Spread block rows over Numba's threads.
+    out : ndarray of float32, optional
+        Array of the output's shape to fill (saves an allocation per call).
+
+    Returns
+    -------
+    ndarray of float32, shape (Hc - cpb_y + 1, Wc - cpb_x + 1, C * cpb_y * cpb_x * nbins)
+        Normalised block features, each block ordered (channel, cell_y, cell_x, bin).
+        Empty (zero rows or columns) when there are fewer cells than a block.
+    """
+    cpb_y, cpb_x = int(cells_per_block[0]), int(cells_per_block[1])
+    if norm not in NORM_CODES:
+        raise ValueError(f"unknown block norm {norm!r}; expected one of {sorted(NORM_CODES)}")
+    n_cells_y, n_cells_x, channels, nbins = cells.shape
+    out = _output(out, (max(n_cells_y - cpb_y + 1, 0), max(n_cells_x - cpb_x + 1, 0),
+                        channels * cpb_y * cpb_x * nbins))
+    if out.shape[0] == 0 or out.shape[1] == 0:
+        return out
+    norm_code = NORM_CODES[norm]
+    energy = np.empty((n_cells_y, n_cells_x, channels), dtype=np.float32)
+    _cell_energy(cells, norm_code, energy)
+    kernel = _normalize_parallel if parallel else _normalize_serial
+    kernel(cells, energy, cpb_y, cpb_x, norm_code, float(eps), out)
+    return out

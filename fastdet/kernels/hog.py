@@ -1,0 +1,353 @@
+"""Whole-image gradient orientation histograms (the cell stage of HOG).
+
+The gradient, orientation binning and cell pooling follow scikit-image's
+``hog`` exactly, so that features match ``skimage.feature.hog`` to float32
+rounding:
+
+* gradients are central differences ``I[y+1] - I[y-1]`` and ``I[x+1] - I[x-1]``
+  with zero gradient on the outermost rows / columns of the image;
+* orientations are unsigned (0-180 degrees) and binned *hard*: bin ``i`` holds
+  angles in ``[i * 180 / nbins, (i + 1) * 180 / nbins)``;
+* a cell's histogram is the mean gradient magnitude per bin over its
+  ``ppc_y * ppc_x`` pixels; pixels beyond the last whole cell are ignored.
+
+Instead of ``atan2`` per pixel the bin is found by counting how many bin
+boundaries the folded gradient vector lies past (a sign test of a cross
+product, branch-free and cheap).  Vectors that lie within float32 rounding of a
+boundary fall back to the exact float64 ``atan2`` rule scikit-image uses, so
+both methods agree bin for bin.
+"""
+
+import functools
+import math
+
+import numba
+import numpy as np
+from numba import njit, prange, uint64
+
+# A gradient whose cross product with a bin boundary is below this fraction of
+# its magnitude is re-binned with the exact atan2 rule.  float32 rounding of
+# the cross product is ~1e-7 relative; 1e-4 leaves a wide margin.
+_NEAR_BOUNDARY = np.float32(1e-4)
+
+
+def orientation_tables(nbins):
+    """Boundary directions and exact boundary angles for ``nbins`` bins.
+
+    Parameters
+    ----------
+    nbins : int
+        Number of unsigned orientation bins.
+
+    Returns
+    -------
+    cos_sin : ndarray of float32, shape (nbins + 1, 2)
+        ``cos`` and ``sin`` of each boundary angle ``k * 180 / nbins``,
+        computed in float64 (so that 90 degrees keeps a positive cosine).
+    bounds : ndarray of float64, shape (nbins + 1,)
+        Boundary angles in degrees, rounded through float32 as scikit-image's
+        histogram code stores them.
+    """
+    angles = 180.0 / nbins * np.arange(nbins + 1, dtype=np.float64)
+    radians = np.deg2rad(angles)
+    cos_sin = np.stack([np.cos(radians), np.sin(radians)], axis=1).astype(np.float32)
+    bounds = angles.astype(np.float32).astype(np.float64)
+    return cos_sin, bounds
+
+
+@njit(cache=True, inline="always")
+def _exact_bin(gx, gy, bounds, nbins):
+    """scikit-image's rule: float64 atan2 in degrees modulo 180, then bounds."""
+    angle = np.arctan2(np.float64(gy), np.float64(gx)) * (180.0 / np.pi) % 180.0
+    for b in range(nbins):
+        if angle >= bounds[b] and angle < bounds[b + 1]:
+            return b
+    return -1  # angle rounded to exactly 180: scikit-image drops the pixel
+
+
+@njit(cache=True)
+def _gradient_row(image, y, channel, gx, gy):
+    """Central-difference gradients of one image row, zero at the borders."""
+    height, width = image.shape[0], image.shape[1]
+    if 0 < y < height - 1:
+        for x in range(width):
+            gy[x] = image[y + 1, x, channel] - image[y - 1, x, channel]
+    else:
+        for x in range(width):
+            gy[x] = 0.0
+    gx[0] = 0.0
+    gx[width - 1] = 0.0
+    for x in range(1, width - 1):
+        gx[x] = image[y, x + 1, channel] - image[y, x - 1, channel]
+
+
+@njit(cache=True)
+def _bin_row(gx, gy, count, cos_sin, bounds, nbins, magnitude, bins):
+    """Magnitude and orientation bin of ``count`` gradients."""
+    for x in range(count):
+        vx = gx[x]
+        vy = gy[x]
+        # Fold to the upper half plane: unsigned orientation in [0, 180).
+        if vy < 0.0 or (vy == 0.0 and vx < 0.0):
+            vx = -vx
+            vy = -vy
+        mag = np.sqrt(vx * vx + vy * vy)
+        magnitude[x] = mag
+        b = 0
+        nearest = np.float32(np.inf)
+        for k in range(1, nbins):
+            cross = cos_sin[k, 0] * vy - cos_sin[k, 1] * vx
+            if cross >= 0.0:
+                b += 1
+            if abs(cross) < nearest:
+                nearest = abs(cross)
+        if nearest <= _NEAR_BOUNDARY * mag and mag > 0.0:
+            b = _exact_bin(gx[x], gy[x], bounds, nbins)
+        bins[x] = b
+
+
+@njit(cache=True)
+def _histogram_cell_row(image, cell_row, ppc_y, ppc_x, ncx, nbins, merge_channels,
+                        cos_sin, bounds, out):
+    """Fill ``out[cell_row]`` (shape (ncx, C_out, nbins))."""
+    width = image.shape[1]
+    channels = image.shape[2]
+    used = ncx * ppc_x
+    gx = np.empty(width, dtype=np.float32)
+    gy = np.empty(width, dtype=np.float32)
+    best_gx = np.empty(width, dtype=np.float32)
+    best_gy = np.empty(width, dtype=np.float32)
+    best_sq = np.empty(width, dtype=np.float64)
+    magnitude = np.empty(width, dtype=np.float32)
+    bins = np.empty(width, dtype=np.int64)
+    row_out = out[cell_row]
+    row_out[:] = 0.0
+    scale = np.float32(1.0 / (ppc_y * ppc_x))
+    for y in range(cell_row * ppc_y, (cell_row + 1) * ppc_y):
+        if merge_channels:
+            # scikit-image's multichannel rule: per pixel, the channel with the
+            # largest gradient magnitude (first one on ties).  Magnitudes are
+            # compared as float64 hypot, like numpy's, because equal sums of
+            # squares can differ by an ulp there and so pick another channel.
+            for c in range(channels):
+                _gradient_row(image, y, c, gx, gy)
+                for x in range(used):
+                    sq = math.hypot(np.float64(gx[x]), np.float64(gy[x]))
+                    if c == 0 or sq > best_sq[x]:
+                        best_sq[x] = sq
+                        best_gx[x] = gx[x]
+                        best_gy[x] = gy[x]
+            _bin_row(best_gx, best_gy, used, cos_sin, bounds, nbins, magnitude, bins)
+            for x in range(used):
+                b = bins[x]
+                if b >= 0:
+                    row_out[x // ppc_x, 0, b] += magnitude[x]
+        else:
+            for c in range(channels):
+                _gradient_row(image, y, c, gx, gy)
+                _bin_row(gx, gy, used, cos_sin, bounds, nbins, magnitude, bins)
+                for x in range(used):
+                    b = bins[x]
+                    if b >= 0:
+                        row_out[x // ppc_x, c, b] += magnitude[x]
+    for cx in range(ncx):
+        for c in range(row_out.shape[1]):
+            for b in range(nbins):
+                row_out[cx, c, b] *= scale
+
+
+@njit(cache=True)
+def _cell_histograms_serial(image, ppc_y, ppc_x, nbins, merge_channels, cos_sin, bounds, out):
+    for cell_row in range(out.shape[0]):
+        _histogram_cell_row(image, cell_row, ppc_y, ppc_x, out.shape[1], nbins,
+                            merge_channels, cos_sin, bounds, out)
+
+
+@njit(cache=True, parallel=True)
+def _cell_histograms_parallel(image, ppc_y, ppc_x, nbins, merge_channels, cos_sin, bounds, out):
+    for cell_row in prange(out.shape[0]):
+        _histogram_cell_row(image, cell_row, ppc_y, ppc_x, out.shape[1], nbins,
+                            merge_channels, cos_sin, bounds, out)
+
+
+#: Integer gradients of uint8 images lie in [-255, 255] on both axes.
+_GRAD_SPAN = 511
+
+
+def orientation_lut(nbins):
+    """Orientation bin of every integer gradient of a uint8 image.
+
+    Built with scikit-image's own float64 expression, so uint8 images are
+    binned exactly as ``skimage.feature.hog`` bins them, boundary cases
+    included.
+
+    Parameters
+    ----------
+    nbins : int
+
+    Returns
+    -------
+    ndarray of uint8, shape (511 * 511,)
+        Entry ``(gy + 255) * 511 + (gx + 255)`` is the bin of gradient
+        ``(gx, gy)``, or ``nbins`` for the rare angle that rounds to exactly
+        180 degrees (scikit-image drops those pixels).
+    """
+    g = np.arange(-255, 256, dtype=np.float64)
+    gy, gx = np.meshgrid(g, g, indexing="ij")
+    angle = np.arctan2(gy, gx) * (180 / np.pi) % 180
+    _, bounds = orientation_tables(nbins)
+    bins = np.searchsorted(bounds, angle.ravel(), side="right") - 1
+    bins[(bins < 0) | (bins >= nbins)] = nbins
+    # 8-bit entries keep the table (255 KiB) in L2 cache.
+    return bins.astype(np.uint8)
+
+
+@njit(cache=True)
+def _histogram_cell_row_u8(image, cell_row, ppc_y, ppc_x, ncx, nbins, bin_lut, target, index,
+                           magnitude, acc, out):
+    """uint8 path for one cell row: gradient -> table index, then table -> histogram.
+
+    A row is read as one flat run of ``W * C`` bytes, so the x-gradient of
+    element ``j`` is ``row[j + C] - row[j - C]`` and the first pass is a
+    contiguous, vectorised loop.  Indices are unsigned: Numba's negative-index
+    wraparound would otherwise stop LLVM from vectorising.  The second pass
+    looks up bin and magnitude of each gradient and adds into ``acc``;
+    ``target[j]`` is the histogram slot base of element ``j`` (channels of a
+    pixel interleave, so consecutive updates rarely hit the same slot).
+    """
+    height, width, channels = image.shape
+    flat = image.reshape(height, width * channels)
+    used = uint64(ncx * ppc_x * channels)
+    c64 = uint64(channels)
+    # Elements with both x-neighbours; the first and last pixel have gx = 0.
+    interior_end = min(used, uint64((width - 1) * channels))
+    slots = nbins + 1
+    acc[:] = 0.0
+    for y in range(cell_row * ppc_y, (cell_row + 1) * ppc_y):
+        mid = flat[y]
+        # On the first and last rows gy = 0, as in scikit-image.
+        up = flat[y - 1] if y > 0 and y < height - 1 else mid
+        down = flat[y + 1] if y > 0 and y < height - 1 else mid
+        for j in range(uint64(0), min(c64, used)):
+            gy = np.int32(down[j]) - np.int32(up[j])
+            index[j] = (gy + 255) * _GRAD_SPAN + 255
+            magnitude[j] = abs(np.float32(gy))
+        for j in range(c64, interior_end):
+            gy = np.int32(down[j]) - np.int32(up[j])
+            gx = np.int32(mid[j + c64]) - np.int32(mid[j - c64])
+            index[j] = (gy + 255) * _GRAD_SPAN + (gx + 255)
+            magnitude[j] = np.sqrt(np.float32(gx * gx + gy * gy))
+        for j in range(max(interior_end, c64), used):
+            gy = np.int32(down[j]) - np.int32(up[j])
+            index[j] = (gy + 255) * _GRAD_SPAN + 255
+            magnitude[j] = abs(np.float32(gy))
+        for j in range(used):
+            acc[uint64(target[j] + bin_lut[uint64(index[j])])] += magnitude[j]
+    scale = np.float32(1.0 / (ppc_y * ppc_x))
+    for cx in range(ncx):
+        for c in range(channels):
+            base = (cx * channels + c) * slots
+            for b in range(nbins):
+                out[cell_row, cx, c, b] = acc[base + b] * scale
+
+
+@njit(cache=True)
+def _slot_targets(ncx, ppc_x, channels, nbins):
+    """Histogram slot base of every element of a flat row (pixel-major)."""
+    used = ncx * ppc_x * channels
+    target = np.empty(used, dtype=np.int32)
+    for j in range(used):
+        target[j] = ((j // channels // ppc_x) * channels + j % channels) * (nbins + 1)
+    return target
+
+
+@njit(cache=True)
+def _cell_rows_u8(image, first, stop, ppc_y, ppc_x, nbins, bin_lut, out):
+    """Cell rows ``first`` .. ``stop - 1`` with one set of scratch buffers."""
+    ncx = out.shape[1]
+    channels = image.shape[2]
+    target = _slot_targets(ncx, ppc_x, channels, nbins)
+    index = np.empty(target.size, dtype=np.int32)
+    magnitude = np.empty(target.size, dtype=np.float32)
+    acc = np.empty(ncx * channels * (nbins + 1), dtype=np.float32)
+    for cell_row in range(first, stop):
+        _histogram_cell_row_u8(image, cell_row, ppc_y, ppc_x, ncx, nbins, bin_lut, target,
+                               index, magnitude, acc, out)
+
+
+@njit(cache=True, parallel=True)
+def _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, out):
+    # One contiguous band of cell rows per thread keeps scratch set-up rare.
+    rows = out.shape[0]
+    for band in prange(bands):
+        _cell_rows_u8(image, band * rows // bands, (band + 1) * rows // bands, ppc_y, ppc_x,
+                      nbins, bin_lut, out)
+
+
+def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, parallel=False, out=None):
+    """Per-cell histograms of unsigned gradient orientation.
+
+    Parameters
+    ----------
+    image : ndarray of uint8 or float32, shape (H, W, C)
+        C-contiguous image; each channel is treated independently unless
+        ``merge_channels`` is set.  uint8 images take the fast exact path
+        (orientation bins from a lookup table of all integer gradients).
+    pixels_per_cell : tuple of int
+        ``(ppc_y, ppc_x)``.
+    nbins : int
+        Number of orientation bins over 0-180 degrees.
+    merge_channels : bool
+        Use, per pixel, the gradient of the channel with the largest
+        magnitude (scikit-image's ``channel_axis`` behaviour); the output then
+        has a single channel.
+    parallel : bool
+        Spread cell rows over Numba's threads.
+    out : ndarray of float32, optional
+        Array of the output's shape to fill (saves an allocation per call).
+
+    Returns
+    -------
+    ndarray of float32, shape (H // ppc_y, W // ppc_x, C_out, nbins)
+        Mean gradient magnitude per orientation bin of each cell.
+    """
+    ppc_y, ppc_x = int(pixels_per_cell[0]), int(pixels_per_cell[1])
+    height, width, channels = image.shape
+    out_channels = 1 if merge_channels else channels
+    shape = (height // ppc_y, width // ppc_x, out_channels, nbins)
+    out = _output(out, shape)
+    if out.size == 0:
+        return out
+    if image.dtype == np.uint8 and not merge_channels:
+        bin_lut = _bin_lut(nbins)
+        if parallel:
+            bands = min(numba.get_num_threads(), out.shape[0])
+            _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, out)
+        else:
+            _cell_rows_u8(image, 0, out.shape[0], ppc_y, ppc_x, nbins, bin_lut, out)
+        return out
+    cos_sin, bounds = _tables(nbins)
+    kernel = _cell_histograms_parallel if parallel else _cell_histograms_serial
+    kernel(np.asarray(image, dtype=np.float32), ppc_y, ppc_x, nbins, merge_channels,
+           cos_sin, bounds, out)
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def _tables(nbins):
+    return orientation_tables(nbins)
+
+
+@functools.lru_cache(maxsize=None)
+def _bin_lut(nbins):
+    return orientation_lut(nbins)
+
+
+def _output(out, shape):
+    """``out`` checked against ``shape``, or a new float32 array."""
+    if out is None:
+        return np.empty(shape, dtype=np.float32)
+    if out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}, "
+                         f"got {out.dtype} {out.shape}")
+    return out

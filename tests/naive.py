@@ -1,0 +1,271 @@
+"""Plain-numpy reference implementations for testing the Numba kernels.
+
+Each function here is the most obvious, slow implementation of what a
+kernel in ``fastdet.kernels`` computes, written independently of the
+kernel's algorithm so that agreement between the two is meaningful.  Keep
+them short, loop-based where that is clearest, and free of Numba and of
+imports from ``fastdet``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def naive_heat(boxes, weights, height, width):
+    """Reference for ``fastdet.kernels.heat.accumulate_heat``.
+
+    Adds each box's weight to its (clipped) slice of a float64 map, then
+    rounds once to float32.
+
+    Parameters
+    ----------
+    boxes : numpy.ndarray
+        Integer array of shape ``(N, 4)``, rows ``[x1, y1, x2, y2]`` with
+        exclusive ``x2``/``y2``; may extend past the map.
+    weights : numpy.ndarray
+        Array of shape ``(N,)``.
+    height, width : int
+        Shape of the heat map.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 array of shape ``(height, width)``.
+    """
+    heat = np.zeros((height, width), dtype=np.float64)
+    for (x1, y1, x2, y2), weight in zip(np.asarray(boxes).tolist(), weights):
+        # Clip explicitly: negative slice bounds would wrap around in numpy.
+        x1, x2 = np.clip([x1, x2], 0, width)
+        y1, y2 = np.clip([y1, y2], 0, height)
+        if x2 > x1 and y2 > y1:
+            heat[y1:y2, x1:x2] += np.float64(weight)
+    return heat.astype(np.float32)
+
+
+def naive_component_boxes(labels, count):
+    """Reference for ``fastdet.kernels.label.component_boxes``.
+
+    Parameters
+    ----------
+    labels : numpy.ndarray
+        Integer array of shape ``(H, W)``, 0 for background.
+    count : int
+        Number of labels.
+
+    Returns
+    -------
+    numpy.ndarray
+        int32 array of shape ``(count, 4)``; row ``k`` is
+        ``[x1, y1, x2, y2]`` (exclusive ``x2``/``y2``) of label ``k + 1``,
+        or all zeros if that label has no pixel.
+    """
+    boxes = np.zeros((count, 4), dtype=np.int32)
+    for k in range(count):
+        ys, xs = np.where(labels == k + 1)
+        if ys.size:
+            boxes[k] = [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]
+    return boxes
+
+
+def naive_component_max(labels, count, values):
+    """Reference for ``fastdet.kernels.label.component_max``.
+
+    Parameters
+    ----------
+    labels : numpy.ndarray
+        Integer array of shape ``(H, W)``, 0 for background.
+    count : int
+        Number of labels.
+    values : numpy.ndarray
+        Array with the same shape as ``labels``.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 array of shape ``(count,)``; ``numpy.max`` of ``values``
+        over label ``k + 1``, or ``-inf`` if that label has no pixel.
+    """
+    maxima = np.full(count, -np.inf, dtype=np.float32)
+    for k in range(count):
+        selected = values[labels == k + 1]
+        if selected.size:
+            maxima[k] = selected.max()
+    return maxima
+
+
+def naive_cell_histograms(image, ppc, nbins):
+    """Reference for ``fastdet.kernels.hog.cell_histograms`` (channels apart).
+
+    Per channel: central-difference gradients ``I[y+1] - I[y-1]`` and
+    ``I[x+1] - I[x-1]``, zero on the outermost rows / columns; unsigned
+    orientation ``atan2(gy, gx)`` in degrees modulo 180, computed in float64;
+    hard binning, bin ``i`` holding angles in ``[i * 180 / nbins,
+    (i + 1) * 180 / nbins)`` (an angle that rounds to 180 falls in no bin);
+    each cell's histogram is the mean gradient magnitude per bin over its
+    pixels, and pixels beyond the last whole cell are ignored.
+
+    Gradients are taken in float32 for float32 images (as the kernels and
+    scikit-image do) and in float64 otherwise (exact for integer images).
+
+    Parameters
+    ----------
+    image : numpy.ndarray
+        Array of shape ``(H, W)`` or ``(H, W, C)``.
+    ppc : int or tuple of int
+        Pixels per cell, ``n`` or ``(ppc_y, ppc_x)``.
+    nbins : int
+        Number of orientation bins over 0-180 degrees.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 array of shape ``(H // ppc_y, W // ppc_x, C, nbins)``.
+    """
+    image = np.asarray(image)
+    if image.ndim == 2:
+        image = image[:, :, None]
+    ppc_y, ppc_x = (ppc, ppc) if np.ndim(ppc) == 0 else ppc
+    work = image.astype(np.float32 if image.dtype == np.float32 else np.float64)
+    height, width, channels = work.shape
+    n_y, n_x = height // ppc_y, width // ppc_x
+    out = np.zeros((n_y, n_x, channels, nbins), dtype=np.float64)
+    for c in range(channels):
+        plane = work[:, :, c]
+        gy = np.zeros_like(plane)
+        gx = np.zeros_like(plane)
+        gy[1:-1, :] = plane[2:, :] - plane[:-2, :]
+        gx[:, 1:-1] = plane[:, 2:] - plane[:, :-2]
+        gy = gy.astype(np.float64)
+        gx = gx.astype(np.float64)
+        angle = np.arctan2(gy, gx) * (180.0 / np.pi) % 180.0
+        magnitude = np.hypot(gx, gy)
+        # Only the pixels of whole cells count.
+        angle = angle[:n_y * ppc_y, :n_x * ppc_x]
+        magnitude = magnitude[:n_y * ppc_y, :n_x * ppc_x]
+        for b in range(nbins):
+            inside = (angle >= 180.0 / nbins * b) & (angle < 180.0 / nbins * (b + 1))
+            votes = np.where(inside, magnitude, 0.0).reshape(n_y, ppc_y, n_x, ppc_x)
+            out[:, :, c, b] = votes.sum(axis=(1, 3)) / (ppc_y * ppc_x)
+    return out
+
+
+def naive_normalize_blocks(cells, cpb, norm, eps=1e-5):
+    """Reference for ``fastdet.kernels.blocks.normalize_blocks``.
+
+    Every block of ``cpb_y x cpb_x`` cells, stepped one cell at a time, is
+    normalised per channel in float64 by the textbook formula of ``norm``;
+    a block's vector is ordered ``(channel, cell_y, cell_x, bin)``.
+
+    Parameters
+    ----------
+    cells : numpy.ndarray
+        Array of shape ``(Hc, Wc, C, nbins)``.
+    cpb : int or tuple of int
+        Cells per block, ``n`` or ``(cpb_y, cpb_x)``.
+    norm : {'L1', 'L1-sqrt', 'L2', 'L2-Hys'}
+    eps : float
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 array of shape
+        ``(max(Hc - cpb_y + 1, 0), max(Wc - cpb_x + 1, 0), C * cpb_y * cpb_x * nbins)``.
+    """
+    cpb_y, cpb_x = (cpb, cpb) if np.ndim(cpb) == 0 else cpb
+    cells = np.asarray(cells, dtype=np.float64)
+    n_y, n_x, channels, nbins = cells.shape
+    out = np.zeros((max(n_y - cpb_y + 1, 0), max(n_x - cpb_x + 1, 0),
+                    channels * cpb_y * cpb_x * nbins), dtype=np.float64)
+    for by in range(out.shape[0]):
+        for bx in range(out.shape[1]):
+            parts = []
+            for c in range(channels):
+                v = cells[by:by + cpb_y, bx:bx + cpb_x, c, :].ravel()
+                if norm == "L1":
+                    v = v / (np.abs(v).sum() + eps)
+                elif norm == "L1-sqrt":
+                    v = np.sqrt(v / (np.abs(v).sum() + eps))
+                elif norm == "L2":
+                    v = v / np.sqrt((v ** 2).sum() + eps ** 2)
+                elif norm == "L2-Hys":
+                    v = v / np.sqrt((v ** 2).sum() + eps ** 2)
+                    v = np.minimum(v, 0.2)
+                    v = v / np.sqrt((v ** 2).sum() + eps ** 2)
+                else:
+                    raise ValueError(f"unknown norm {norm!r}")
+                parts.append(v)
+            out[by, bx] = np.concatenate(parts)
+    return out
+
+
+def naive_window_sums(feature_map, weights, step, grid):
+    """Reference for the window-scoring kernels of ``fastdet.kernels.score``.
+
+    Window ``(iy, ix)`` is the explicit slice
+    ``feature_map[iy * step : iy * step + n, ix * step : ix * step + m]``
+    (``n, m = weights.shape[:2]``), dotted with ``weights`` in float64.
+
+    Parameters
+    ----------
+    feature_map : numpy.ndarray
+        Array of shape ``(H, W, ...)`` (a HOG block map or a spatial image).
+    weights : numpy.ndarray
+        Array of shape ``(n, m, ...)``, trailing axes as ``feature_map``'s.
+    step : int
+        Window step along both axes, in ``feature_map`` elements.
+    grid : tuple of int
+        ``(ny, nx)`` windows.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 array of shape ``grid``.
+    """
+    n, m = weights.shape[:2]
+    flat_weights = np.asarray(weights, dtype=np.float64).ravel()
+    out = np.zeros(grid, dtype=np.float64)
+    for iy in range(grid[0]):
+        for ix in range(grid[1]):
+            window = feature_map[iy * step:iy * step + n, ix * step:ix * step + m]
+            assert window.shape == weights.shape, "window does not fit in the map"
+            out[iy, ix] = np.dot(np.asarray(window, dtype=np.float64).ravel(), flat_weights)
+    return out
+
+
+def naive_tile_window_sums(tiles, size, step, grid):
+    """Reference for ``fastdet.kernels.score.add_tile_window_sums``.
+
+    Returns the float64 ``np.sum`` of ``tiles[iy * step : + size,
+    ix * step : + size]`` for every window of ``grid``.
+    """
+    out = np.zeros(grid, dtype=np.float64)
+    for iy in range(grid[0]):
+        for ix in range(grid[1]):
+            window = tiles[iy * step:iy * step + size, ix * step:ix * step + size]
+            assert window.shape == (size, size), "window does not fit in the tiles"
+            out[iy, ix] = np.sum(window, dtype=np.float64)
+    return out
+
+
+def naive_tile_weight_sums(image, lut, tile):
+    """Reference for ``fastdet.kernels.colour.tile_weight_sums``.
+
+    Per pixel the weight ``sum_c lut[c, image[y, x, c]]``, summed in float64
+    over every whole ``tile x tile`` tile.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 array of shape ``(H // tile, W // tile)``.
+    """
+    height, width, channels = image.shape
+    pixel = np.zeros((height, width), dtype=np.float64)
+    for c in range(channels):
+        pixel += np.asarray(lut, dtype=np.float64)[c][image[:, :, c]]
+    ty, tx = height // tile, width // tile
+    out = np.zeros((ty, tx), dtype=np.float64)
+    for y in range(ty):
+        for x in range(tx):
+            out[y, x] = pixel[y * tile:(y + 1) * tile, x * tile:(x + 1) * tile].sum()
+    return out

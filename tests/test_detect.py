@@ -1,0 +1,118 @@
+"""Detector: input handling, planning, heat and boxes (independent of the bundled model)."""
+
+import numpy as np
+import pytest
+
+from fastdet.config import BoxConfig, DetectorConfig, HeatConfig, ScaleConfig, SearchConfig
+from fastdet.detect import Detector, Hits, as_bgr_frame, plan_scales
+from fastdet.errors import InputError
+from fastdet.features import FeatureLayout, FeatureOptions
+from fastdet.model import Model
+
+
+@pytest.fixture(scope="module")
+def random_model():
+    options = FeatureOptions()
+    rng = np.random.default_rng(3)
+    weights = rng.normal(scale=0.01, size=FeatureLayout(options).length).astype(np.float32)
+    return Model(weights=weights, bias=-0.2, options=options)
+
+
+def test_frame_conversions():
+    grey = np.full((20, 30), 7, np.uint8)
+    assert as_bgr_frame(grey).shape == (20, 30, 3)
+    assert as_bgr_frame(grey[:, :, None]).shape == (20, 30, 3)
+    bgra = np.zeros((20, 30, 4), np.uint8)
+    bgra[..., 0] = 9
+    out = as_bgr_frame(bgra)
+    assert out.shape == (20, 30, 3) and out[0, 0, 0] == 9
+    strided = np.zeros((20, 60, 3), np.uint8)[:, ::2]
+    assert as_bgr_frame(strided).flags.c_contiguous
+
+
+@pytest.mark.parametrize("frame, words", [
+    (np.zeros((10, 10, 3), np.float32), "uint8"),
+    (np.zeros((10, 10, 2), np.uint8), "shape"),
+    (np.zeros((2, 10, 10, 3), np.uint8), "shape"),
+    ([[0, 1]], "numpy array"),
+])
+def test_bad_frames_raise_input_error(random_model, frame, words):
+    detector = Detector(random_model, threads=1)
+    with pytest.raises(InputError, match=words):
+        detector(frame)
+
+
+@pytest.mark.parametrize("shape", [(10, 10, 3), (63, 500, 3), (40, 40), (1, 1, 3)])
+def test_frames_smaller_than_any_window_give_no_boxes(random_model, shape):
+    detector = Detector(random_model, threads=1)
+    detections = detector(np.zeros(shape, np.uint8))
+    assert len(detections) == 0
+    assert detector.heatmap(np.zeros(shape, np.uint8)).shape == shape[:2]
+
+
+def test_plans_follow_the_published_grid(random_model):
+    plans = plan_scales(DetectorConfig(), random_model.options, (1280, 720))
+    assert [p.grid for p in plans] == [(2, 20), (6, 52), (6, 12), (6, 42), (5, 37)]
+    first = plans[0]
+    assert first.roi == (320, 396, 960, 460)
+    assert first.boxes[0].tolist() == [320, 396, 352, 428]
+    # Every window lies inside its region of interest.
+    for plan in plans:
+        x0, y0, x1, y1 = plan.roi
+        assert plan.boxes[:, 0].min() >= x0 and plan.boxes[:, 2].max() <= x1
+        assert plan.boxes[:, 1].min() >= y0 and plan.boxes[:, 3].max() <= y1
+
+
+def test_plans_scale_with_the_frame(random_model):
+    full = plan_scales(DetectorConfig(), random_model.options, (1280, 720))
+    half = plan_scales(DetectorConfig(), random_model.options, (640, 360))
+    assert [p.grid for p in half] == [p.grid for p in full]
+    assert half[0].roi == (160, 198, 480, 230)
+    np.testing.assert_allclose(half[0].boxes, full[0].boxes / 2, atol=1)
+
+
+def test_heatmap_and_boxes_from_known_hits(random_model):
+    config = DetectorConfig(heat=HeatConfig(threshold=1), boxes=BoxConfig(min_size=1, horizon_y=0))
+    detector = Detector(random_model, config, threads=1)
+    boxes = np.array([[10, 10, 50, 50], [20, 20, 60, 60], [200, 200, 240, 240]], np.int32)
+    hits = Hits(boxes, np.ones(3, np.float32), np.zeros(3, np.int64), 3)
+    heat, origin = detector.heat_region(hits, (300, 300))
+    assert origin == (10, 10)
+    assert heat.max() == 2
+    detections = detector.boxes_from_heat(heat, origin, (300, 300))
+    assert detections.xyxy.tolist() == [[20, 20, 50, 50]]
+    assert detections.score.tolist() == [2.0]
+
+
+def test_box_filter_applies_size_aspect_and_horizon(random_model):
+    config = DetectorConfig(boxes=BoxConfig(min_size=20, min_aspect=0.5, max_aspect=3.0,
+                                            horizon_y=100))
+    detector = Detector(random_model, config, threads=1)
+    boxes = np.array([
+        [0, 200, 40, 240],    # kept
+        [0, 200, 10, 240],    # too narrow, aspect 0.25
+        [0, 200, 130, 230],   # aspect 4.3
+        [0, 40, 40, 90],      # above the horizon
+        [0, 80, 40, 120],     # crosses the horizon: kept
+    ], np.int32)
+    assert detector.box_filter(boxes, (1280, 720)).tolist() == [True, False, False, False, True]
+
+
+def test_parallel_and_serial_detectors_agree(random_model, data_dir):
+    import cv2
+    frame = cv2.imread(str(data_dir / "test_images" / "test1.jpg"))
+    serial = Detector(random_model, threads=1)
+    parallel = Detector(random_model, threads=2)
+    for plan in serial.plans((1280, 720)):
+        a = serial.score_scale(serial.prepare(frame), plan)
+        b = parallel.score_scale(parallel.prepare(frame), plan)
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
+    Detector(random_model, threads=1)  # restore the thread count for later tests
+
+
+def test_one_scale_config_scores_only_that_scale(random_model):
+    config = DetectorConfig(search=SearchConfig(scales=(ScaleConfig(64, 0.5, (0, 256), (0, 128)),),
+                                                reference_size=(256, 128)))
+    detector = Detector(random_model, config, threads=1)
+    hits = detector.hits(np.random.default_rng(0).integers(0, 255, (128, 256, 3), np.uint8))
+    assert hits.windows_scored == 3 * 7
