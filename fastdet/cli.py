@@ -115,6 +115,19 @@ def cmd_train(args):
     return 0
 
 
+# -- mine -------------------------------------------------------------------
+def cmd_mine(args):
+    from .evaluate import load_annotations
+    from .mine import mine
+
+    annotations = load_annotations(args.annotations)
+    detector = _detector(args)
+    result = mine(detector, args.sources, annotations, args.out, max_iou=args.max_iou)
+    print(f"{len(result.saved)} hard negatives from {result.hits} hits in {result.frames} "
+          f"annotated frames written to {args.out}")
+    return 0
+
+
 # -- bench ------------------------------------------------------------------
 def cmd_bench(args):
     from .bench import format_stages, format_table, run_benchmark
@@ -187,6 +200,16 @@ def build_parser():
     train.add_argument("--extra-negatives", nargs="+", metavar="DIR",
                        help="more folders of non-vehicle crops")
     train.set_defaults(handler=cmd_train)
+
+    mine = sub.add_parser("mine", help="save false hits on annotated frames as negative crops")
+    mine.add_argument("sources", nargs="+", metavar="SOURCE", help="images and/or videos")
+    mine.add_argument("--annotations", required=True, metavar="A.json",
+                      help="vehicle boxes: images by file name, video frames as frame<N>")
+    mine.add_argument("--out", required=True, metavar="DIR", help="folder for the 64x64 crops")
+    mine.add_argument("--max-iou", type=float, default=0.1,
+                      help="a hit overlapping every vehicle less than this is a negative")
+    _add_model_options(mine)
+    mine.set_defaults(handler=cmd_mine)
 
     bench = sub.add_parser("bench", help="per-frame latency of fastdet and its peers")
     bench.add_argument("--video", help="video to time (default: the shared test video)")

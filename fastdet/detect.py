@@ -26,13 +26,15 @@ from .features import WINDOW, color_planes, histogram_bin_lut, hog_input, spatia
 from .kernels.blocks import normalize_blocks
 from .kernels.heat import accumulate_heat
 from .kernels.hog import cell_histograms
-from .kernels.label import component_boxes, component_max, label_components
+from .kernels.label import (component_boxes, component_core_boxes, component_max,
+                            label_components)
 from .kernels.colour import tile_weight_sums
-from .kernels.score import add_hog_scores, add_spatial_scores, add_tile_window_sums, window_count
+from .kernels.score import (add_hog_scores, add_hog_scores_from_cells, add_spatial_scores,
+                            add_tile_window_sums, window_count)
 from .model import Model, load_model
 
 #: Names of the timed stages, in pipeline order.
-STAGES = ("resize_convert", "cells", "blocks", "score", "heat", "label", "total")
+STAGES = ("resize_convert", "cells", "blocks_score", "colour_score", "heat", "label", "total")
 
 
 def as_bgr_frame(frame):
@@ -225,17 +227,20 @@ class Detector:
         """Cell and block arrays of a scale, reused from frame to frame.
 
         Fresh multi-megabyte arrays every frame would cost page faults;
-        callers get the arrays back filled, so the reuse is invisible.
+        callers get the arrays back filled, so the reuse is invisible.  The
+        block map is only materialised on the multi-threaded path.
         """
         buffers = self._workspace.get(plan.scaled_size)
         if buffers is None:
             o = self._options
             ppc, cpb, channels = o.pixels_per_cell, o.cells_per_block, self._hog_channels
             cells_y, cells_x = plan.scaled_size[1] // ppc, plan.scaled_size[0] // ppc
+            blocks = None
+            if self._parallel:
+                blocks = np.empty((cells_y - cpb + 1, cells_x - cpb + 1,
+                                   channels * cpb * cpb * o.orientations), np.float32)
             buffers = self._workspace[plan.scaled_size] = (
-                np.empty((cells_y, cells_x, channels, o.orientations), np.float32),
-                np.empty((cells_y - cpb + 1, cells_x - cpb + 1,
-                          channels * cpb * cpb * o.orientations), np.float32))
+                np.empty((cells_y, cells_x, channels, o.orientations), np.float32), blocks)
         return buffers
 
     def prepare(self, frame):
@@ -283,19 +288,23 @@ class Detector:
         step_px = plan.step_cells * options.pixels_per_cell
         if options.use_hog:
             ppc, cpb = options.pixels_per_cell, options.cells_per_block
-            buffers = self._buffers(plan)
+            cells_buffer, blocks_buffer = self._buffers(plan)
             cells = cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
                                     options.orientations, parallel=self._parallel,
-                                    out=buffers[0])
+                                    out=cells_buffer)
             t2 = time.perf_counter()
-            blocks = normalize_blocks(cells, (cpb, cpb), options.block_norm,
-                                      parallel=self._parallel, out=buffers[1])
-            t3 = time.perf_counter()
             timings["cells"] += t2 - t1
-            timings["blocks"] += t3 - t2
-            t1 = t3
-            add_hog_scores(blocks, self._hog_weights, plan.step_cells, scores,
-                           parallel=self._parallel)
+            if self._parallel:
+                blocks = normalize_blocks(cells, (cpb, cpb), options.block_norm, parallel=True,
+                                          out=blocks_buffer)
+                add_hog_scores(blocks, self._hog_weights, plan.step_cells, scores, parallel=True)
+            else:
+                # One thread: normalise each block row and score it at once,
+                # never writing the whole block map to memory.
+                add_hog_scores_from_cells(cells, (cpb, cpb), options.block_norm,
+                                          self._hog_weights, plan.step_cells, scores)
+            t1 = time.perf_counter()
+            timings["blocks_score"] += t1 - t2
         if options.spatial_size:
             factor = WINDOW // options.spatial_size
             add_spatial_scores(spatial_image(converted, options), self._spatial_weights,
@@ -304,7 +313,7 @@ class Detector:
             tile = math.gcd(step_px, WINDOW)
             add_tile_window_sums(tile_weight_sums(converted, self._hist_lut, tile), WINDOW // tile,
                                  step_px // tile, scores)
-        timings["score"] += time.perf_counter() - t1
+        timings["colour_score"] += time.perf_counter() - t1
         return scores
 
     def hits(self, frame):
@@ -400,8 +409,13 @@ class Detector:
                                          self.config.heat.connectivity)
         if count == 0:
             return Detections.empty()
-        boxes = component_boxes(labels, count)
         peaks = component_max(labels, count, heat)
+        fraction = self.config.heat.peak_fraction
+        if fraction > 0:
+            boxes = component_core_boxes(labels, count, heat,
+                                         (peaks * np.float32(fraction)).astype(np.float32))
+        else:
+            boxes = component_boxes(labels, count)
         boxes += np.array([origin[0], origin[1], origin[0], origin[1]], dtype=np.int32)
         keep = self.box_filter(boxes, frame_size)
         return Detections(boxes[keep], peaks[keep])

@@ -147,13 +147,24 @@ def fit_linear_svm(features, labels, C=0.001, seed=0):
     return weights.astype(np.float32), bias
 
 
-def _accuracy(weights, bias, features, labels):
-    scores = features.astype(np.float64) @ weights.astype(np.float64) + bias
-    return float(np.mean((scores > 0) == (labels == 1)))
+def _decision(weights, bias, features):
+    return features.astype(np.float64) @ weights.astype(np.float64) + bias
+
+
+def _confusion(scores, labels):
+    predicted = scores > 0
+    actual = labels == 1
+    return {"tp": int(np.sum(predicted & actual)), "fp": int(np.sum(predicted & ~actual)),
+            "tn": int(np.sum(~predicted & ~actual)), "fn": int(np.sum(~predicted & actual))}
 
 
 def _fit_and_score(features, labels, train_mask, flips, C, seed):
-    """Fit on ``train_mask`` (plus flipped copies) and score the rest."""
+    """Fit on ``train_mask`` (plus flipped copies) and score the rest.
+
+    Returns
+    -------
+    weights, bias, report, test_scores
+    """
     train_x = features[train_mask]
     train_y = labels[train_mask]
     if flips is not None:
@@ -163,16 +174,18 @@ def _fit_and_score(features, labels, train_mask, flips, C, seed):
     weights, bias = fit_linear_svm(train_x, train_y, C=C, seed=seed)
     seconds = time.perf_counter() - start
     test = ~train_mask
+    scores = _decision(weights, bias, features[test])
     return weights, bias, {
-        "accuracy": _accuracy(weights, bias, features[test], labels[test]),
+        "accuracy": float(np.mean((scores > 0) == (labels[test] == 1))),
+        "confusion": _confusion(scores, labels[test]),
         "train_crops": int(len(train_y)),
         "test_crops": int(test.sum()),
         "fit_seconds": round(seconds, 2),
-    }
+    }, scores
 
 
 def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, seed=0,
-          extra_negatives=(), log=None):
+          extra_negatives=(), log=None, return_test_scores=False):
     """Train a model on a data set folder and report both splits.
 
     Parameters
@@ -193,11 +206,15 @@ def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, se
         Extra non-vehicle folders.
     log : callable, optional
         Receives progress lines.
+    return_test_scores : bool
+        Also return the leak-free test split's decision values and labels.
 
     Returns
     -------
     Model
         Fit on the leak-free training part; ``model.report`` has the figures.
+    (scores, labels) : tuple of ndarray
+        Only with ``return_test_scores``.
     """
     options = options or FeatureOptions()
     log = log or (lambda message: None)
@@ -213,11 +230,12 @@ def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, se
     labels = dataset.labels
 
     random_test = random_split(labels, seed=seed)
-    _, _, random_report = _fit_and_score(features, labels, ~random_test, flips, C, seed)
+    _, _, random_report, _ = _fit_and_score(features, labels, ~random_test, flips, C, seed)
     log(f"random split: accuracy {random_report['accuracy']:.4f}")
     folds = leak_free_folds(dataset.groups, n_folds)
-    weights, bias, leak_free_report = _fit_and_score(features, labels, folds != test_fold,
-                                                     flips, C, seed)
+    train_mask = folds != test_fold
+    weights, bias, leak_free_report, test_scores = _fit_and_score(features, labels, train_mask,
+                                                                  flips, C, seed)
     log(f"leak-free split: accuracy {leak_free_report['accuracy']:.4f}")
 
     report = {
@@ -234,4 +252,7 @@ def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, se
         "feature_seconds": round(extracted - loaded, 2),
         "total_seconds": round(time.perf_counter() - started, 2),
     }
-    return Model(weights=weights, bias=bias, options=options, report=report)
+    model = Model(weights=weights, bias=bias, options=options, report=report)
+    if return_test_scores:
+        return model, (test_scores, labels[~train_mask])
+    return model

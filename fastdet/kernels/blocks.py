@@ -38,9 +38,19 @@ def _cell_energy(cells, norm_code, energy):
                 energy[cy, cx, c] = total
 
 
+def cell_energy(cells, norm_code):
+    """Per cell and channel, the sum a block norm is built from (float32 (Hc, Wc, C))."""
+    energy = np.empty(cells.shape[:3], dtype=np.float32)
+    _cell_energy(cells, norm_code, energy)
+    return energy
+
+
 @njit(cache=True, fastmath=_FASTMATH)
-def _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, out):
+def _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, dest_row):
     """Normalise every block whose top-left cell is in cell row ``by``.
+
+    ``dest_row`` is the flat output row: ``n_blocks_x`` blocks of
+    ``C * cpb_y * cpb_x * nbins`` features each.
 
     Works on flat rows with unsigned indices: Numba's negative-index
     wraparound would otherwise keep LLVM from vectorising the copies.
@@ -50,13 +60,13 @@ def _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, out):
     nb = uint64(nbins)
     per_channel = uint64(cpb_y * cpb_x * nbins)
     block_len = uint64(channels) * per_channel
+    n_blocks_x = uint64(dest_row.size) // block_len
     eps32 = np.float32(eps)
     eps_sq = np.float32(eps * eps)
     clip = np.float32(0.2)
-    dest_row = out[by].reshape(out.shape[1] * out.shape[2])
     src_all = cells.reshape(cells.size)
     row_len = uint64(n_cells_x) * cell_len
-    for bx in range(uint64(out.shape[1])):
+    for bx in range(n_blocks_x):
         for c in range(uint64(channels)):
             total = np.float32(0.0)
             for cy in range(cpb_y):
@@ -91,13 +101,15 @@ def _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, out):
 @njit(cache=True)
 def _normalize_serial(cells, energy, cpb_y, cpb_x, norm_code, eps, out):
     for by in range(out.shape[0]):
-        _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, out)
+        _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps,
+                             out[by].reshape(out.shape[1] * out.shape[2]))
 
 
 @njit(cache=True, parallel=True)
 def _normalize_parallel(cells, energy, cpb_y, cpb_x, norm_code, eps, out):
     for by in prange(out.shape[0]):
-        _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, out)
+        _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps,
+                             out[by].reshape(out.shape[1] * out.shape[2]))
 
 
 def normalize_blocks(cells, cells_per_block, norm, eps=EPS, parallel=False, out=None):
@@ -133,8 +145,7 @@ def normalize_blocks(cells, cells_per_block, norm, eps=EPS, parallel=False, out=
     if out.shape[0] == 0 or out.shape[1] == 0:
         return out
     norm_code = NORM_CODES[norm]
-    energy = np.empty((n_cells_y, n_cells_x, channels), dtype=np.float32)
-    _cell_energy(cells, norm_code, energy)
+    energy = cell_energy(cells, norm_code)
     kernel = _normalize_parallel if parallel else _normalize_serial
     kernel(cells, energy, cpb_y, cpb_x, norm_code, float(eps), out)
     return out

@@ -19,6 +19,8 @@ of the scale's image (``step_px`` = cells per step x pixels per cell).
 import numpy as np
 from numba import njit, prange, uint64
 
+from .blocks import EPS, NORM_CODES, _normalize_block_row, cell_energy
+
 # Reassociation lets LLVM vectorise the dot products; sums then differ from
 # strict left-to-right order only at float32 rounding level.
 _FASTMATH = {"reassoc", "nsz", "contract"}
@@ -86,6 +88,58 @@ def add_hog_scores(blocks, weights, step_cells, out, parallel=False):
     weights2d = weights.reshape(n, n * length)
     kernel = _add_grid_parallel if parallel else _add_grid
     kernel(image2d, weights2d, step_cells, step_cells * length, out)
+
+
+@njit(cache=True)
+def _add_hog_scores_fused(cells, energy, cpb_y, cpb_x, norm_code, eps, weights2d, step, out):
+    n = weights2d.shape[0]
+    block_len = cells.shape[2] * cpb_y * cpb_x * cells.shape[3]
+    row = np.empty((cells.shape[1] - cpb_x + 1) * block_len, dtype=np.float32)
+    rows_out, cols_out = out.shape
+    weights_flat = weights2d.reshape(weights2d.size)
+    for by in range((rows_out - 1) * step + n):
+        _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, row)
+        # Window rows iy whose n block rows include ``by``.
+        first = max(0, (by - n + step) // step)
+        last = min(rows_out - 1, by // step)
+        for iy in range(first, last + 1):
+            r = by - iy * step
+            for ix in range(cols_out):
+                out[iy, ix] += _dot_rows(row, row.size, 0, ix * step * block_len,
+                                         weights_flat[r * n * block_len:], 1, n * block_len)
+
+
+def add_hog_scores_from_cells(cells, cells_per_block, norm, weights, step_cells, out, eps=EPS):
+    """Normalise blocks and add every window's HOG score in one pass.
+
+    Equivalent to :func:`fastdet.kernels.blocks.normalize_blocks` followed by
+    :func:`add_hog_scores`, but each block row is normalised into a small
+    scratch row and immediately dotted with the windows that contain it, so
+    the block map (several megabytes per frame) is never written to memory.
+
+    Parameters
+    ----------
+    cells : ndarray of float32, shape (Hc, Wc, C, nbins)
+    cells_per_block : tuple of int
+    norm : str
+        Block norm, as in :func:`~fastdet.kernels.blocks.normalize_blocks`.
+    weights : ndarray of float32, shape (n, n, F)
+    step_cells : int
+    out : ndarray of float32, shape (Ny, Nx)
+    eps : float
+    """
+    cpb_y, cpb_x = int(cells_per_block[0]), int(cells_per_block[1])
+    n, _, length = weights.shape
+    if length != cells.shape[2] * cpb_y * cpb_x * cells.shape[3]:
+        raise ValueError(f"weights have {length} features per block, cells give "
+                         f"{cells.shape[2] * cpb_y * cpb_x * cells.shape[3]}")
+    blocks_shape = (cells.shape[0] - cpb_y + 1, cells.shape[1] - cpb_x + 1)
+    _check_fits(out, blocks_shape, (n, n), step_cells)
+    if out.size == 0:
+        return
+    norm_code = NORM_CODES[norm]
+    _add_hog_scores_fused(cells, cell_energy(cells, norm_code), cpb_y, cpb_x, norm_code,
+                          float(eps), weights.reshape(n, n * length), step_cells, out)
 
 
 def add_spatial_scores(spatial, weights, step_px, out, parallel=False):
