@@ -95,6 +95,8 @@ def cmd_train(args):
     from .features import FeatureOptions
     from .train import train
 
+    if args.compare:
+        return _train_compare(args)
     channel = args.hog_channel
     options = FeatureOptions(
         color_space=args.color_space,
@@ -102,10 +104,21 @@ def cmd_train(args):
         orientations=args.orientations, pixels_per_cell=args.pixels_per_cell,
         cells_per_block=args.cells_per_block, block_norm=args.block_norm,
         spatial_size=args.spatial_size, hist_bins=args.hist_bins, use_hog=not args.no_hog)
-    model = train(args.data_dir, options=options, C=args.C, flip=not args.no_flip,
-                  n_folds=args.folds, extra_negatives=args.extra_negatives or (),
-                  log=lambda line: print(line, file=sys.stderr, flush=True))
+    if args.out is None:
+        raise InputError("fastdet train needs --out MODEL.npz (or --compare)")
+    if args.C:
+        C = args.C[0] if len(args.C) == 1 and not args.cv else tuple(args.C)
+    else:
+        C = DEFAULT_C_GRID if args.cv else DEFAULT_C
+    model, (test_scores, test_labels) = train(
+        args.data_dir, options=options, C=C, flip=not args.no_flip, n_folds=args.folds,
+        extra_negatives=args.extra_negatives or (), return_test_scores=True,
+        log=lambda line: print(line, file=sys.stderr, flush=True))
     model.save(args.out)
+    if args.report:
+        from .viz import training_report_figure
+        training_report_figure(model.report, test_scores, test_labels, args.report)
+        print(f"training report written to {args.report}")
     report = model.report
     print(f"feature length {report['feature_length']}  crops {report['crops']}  "
           f"train time {report['total_seconds']:.1f} s")
@@ -155,6 +168,22 @@ def cmd_bench(args):
     return 0
 
 
+def _train_compare(args):
+    from .features import FeatureOptions
+    from .study import compare, format_markdown, plot
+
+    base = FeatureOptions(orientations=args.orientations, pixels_per_cell=args.pixels_per_cell,
+                          cells_per_block=args.cells_per_block, block_norm=args.block_norm,
+                          spatial_size=args.spatial_size or 32, hist_bins=args.hist_bins or 32)
+    C = args.C[0] if args.C else DEFAULT_C
+    rows = compare(args.data_dir, base, C=C, flip=not args.no_flip,
+                   log=lambda line: print(line, file=sys.stderr, flush=True))
+    print(format_markdown(rows))
+    if args.plot:
+        print(f"plot written to {plot(rows, args.plot)}")
+    return 0
+
+
 def build_parser():
     """The argument parser of the ``fastdet`` command."""
     from .features import COLOR_CODES, FeatureOptions
@@ -181,7 +210,11 @@ def build_parser():
     defaults = FeatureOptions()
     train = sub.add_parser("train", help="train a model on vehicles/ and non-vehicles/ crops")
     train.add_argument("data_dir", metavar="DATA_DIR")
-    train.add_argument("--out", required=True, metavar="MODEL.npz")
+    train.add_argument("--out", metavar="MODEL.npz", help="where to write the model")
+    train.add_argument("--report", metavar="PNG", help="also draw the training report")
+    train.add_argument("--compare", action="store_true",
+                       help="train every colour space x feature set and print a table")
+    train.add_argument("--plot", metavar="PNG", help="with --compare: bar chart of the table")
     train.add_argument("--color-space", default=defaults.color_space, choices=sorted(COLOR_CODES))
     train.add_argument("--hog-channel", default=str(defaults.hog_channel),
                        choices=["all", "gray", "0", "1", "2"])
@@ -194,7 +227,11 @@ def build_parser():
     train.add_argument("--hist-bins", type=int, default=defaults.hist_bins,
                        help="0 disables colour histograms")
     train.add_argument("--no-hog", action="store_true", help="disable HOG features")
-    train.add_argument("--C", type=float, default=DEFAULT_C, help="LinearSVC regularisation")
+    train.add_argument("--C", type=float, nargs="+",
+                       help=f"LinearSVC regularisation; several values (or --cv) are "
+                            f"cross-validated on the leak-free folds (default {DEFAULT_C:g})")
+    train.add_argument("--cv", action="store_true",
+                       help=f"choose C from {list(DEFAULT_C_GRID)} by leak-free cross-validation")
     train.add_argument("--no-flip", action="store_true", help="no horizontal-flip augmentation")
     train.add_argument("--folds", type=int, default=5, help="leak-free split: contiguous folds")
     train.add_argument("--extra-negatives", nargs="+", metavar="DIR",
@@ -226,8 +263,10 @@ def build_parser():
     return parser
 
 
-#: LinearSVC regularisation of the bundled model.
+#: LinearSVC regularisation when neither --C nor --cv is given.
 DEFAULT_C = 1e-3
+#: Values of C that --cv searches.
+DEFAULT_C_GRID = (1e-4, 3e-4, 1e-3, 3e-3)
 
 
 def main(argv=None):

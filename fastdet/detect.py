@@ -22,13 +22,13 @@ import numpy as np
 from .config import DetectorConfig
 from .detections import Detections
 from .errors import InputError
-from .features import WINDOW, color_planes, histogram_bin_lut, hog_input, spatial_image
+from .features import WINDOW, color_planes, histogram_bin_lut, hog_input
 from .kernels.blocks import normalize_blocks
 from .kernels.heat import accumulate_heat
 from .kernels.hog import cell_histograms
 from .kernels.label import (component_boxes, component_core_boxes, component_max,
                             label_components)
-from .kernels.colour import tile_weight_sums
+from .kernels.colour import colour_maps
 from .kernels.score import (add_hog_scores, add_hog_scores_from_cells, add_spatial_scores,
                             add_tile_window_sums, window_count)
 from .model import Model, load_model
@@ -206,6 +206,7 @@ class Detector:
         hog_w, spatial_w, hist_w = model.split_weights()
         self._hog_weights = np.ascontiguousarray(hog_w)
         self._spatial_weights = np.ascontiguousarray(spatial_w)
+        self._hist_lut = None
         if options.hist_bins:
             bins = histogram_bin_lut(options.hist_bins)
             self._hist_lut = np.ascontiguousarray(hist_w[:, bins], dtype=np.float32)
@@ -305,14 +306,14 @@ class Detector:
                                           self._hog_weights, plan.step_cells, scores)
             t1 = time.perf_counter()
             timings["blocks_score"] += t1 - t2
-        if options.spatial_size:
-            factor = WINDOW // options.spatial_size
-            add_spatial_scores(spatial_image(converted, options), self._spatial_weights,
-                               step_px // factor, scores)
-        if options.hist_bins:
+        if options.spatial_size or options.hist_bins:
             tile = math.gcd(step_px, WINDOW)
-            add_tile_window_sums(tile_weight_sums(converted, self._hist_lut, tile), WINDOW // tile,
-                                 step_px // tile, scores)
+            factor = WINDOW // options.spatial_size if options.spatial_size else 0
+            tiles, spatial = colour_maps(converted, self._hist_lut, tile, factor)
+            if options.spatial_size:
+                add_spatial_scores(spatial, self._spatial_weights, step_px // factor, scores)
+            if options.hist_bins:
+                add_tile_window_sums(tiles, WINDOW // tile, step_px // tile, scores)
         timings["colour_score"] += time.perf_counter() - t1
         return scores
 

@@ -8,8 +8,8 @@ feature groups, computed by the same functions:
   are the ``n x n`` blocks it covers, read row by row, each block ordered
   ``(channel, cell_y, cell_x, bin)``.
 * spatial: :func:`spatial_image` box-averages the colour-converted image by
-  ``window / spatial_size`` (OpenCV's INTER_AREA, rounded to uint8); a
-  window's spatial features are the
+  ``window / spatial_size`` (exact float means); a window's spatial features
+  are the
   ``spatial_size x spatial_size x 3`` pixels it covers in that image.
 * colour histogram: per channel, counts of ``hist_bins`` equal-width bins of
   the colour-converted uint8 values over the window.
@@ -29,6 +29,7 @@ import numpy as np
 
 from .errors import ConfigError, InputError
 from .kernels.blocks import NORM_CODES, normalize_blocks
+from .kernels.colour import colour_maps
 from .kernels.hog import cell_histograms
 
 #: Side of a training crop and of every detection window after resizing.
@@ -264,21 +265,13 @@ def hog_blocks(hog_image, options, parallel=False):
 
 
 def spatial_image(converted, options):
-    """Box-average the colour image by ``64 / spatial_size`` (float32).
+    """Box-average the colour image by ``64 / spatial_size`` (float32, exact means).
 
     Window origins are multiples of the cell size, which is a multiple of the
     averaging factor, so each window's spatial features are an aligned crop of
     this image.
     """
-    factor = WINDOW // options.spatial_size
-    height, width = converted.shape[:2]
-    out_w, out_h = width // factor, height // factor
-    if factor > 1:
-        # INTER_AREA with an integer factor averages each factor x factor tile
-        # alone, so a window's crop of it equals the resized window itself.
-        converted = cv2.resize(converted[:out_h * factor, :out_w * factor], (out_w, out_h),
-                               interpolation=cv2.INTER_AREA)
-    return converted.astype(np.float32)
+    return colour_maps(converted, factor=WINDOW // options.spatial_size)[1]
 
 
 def histogram_bin_lut(bins):

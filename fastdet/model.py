@@ -7,7 +7,8 @@ A model file holds two arrays and nothing that needs pickle:
   order;
 * ``metadata``: the UTF-8 bytes of a JSON object with the format name and
   version, the feature options, the bias (with the scaler's mean folded in),
-  the feature length, a SHA-256 of the weights and the training report.
+  the feature length, SHA-256 digests of the weights and of the bias and
+  feature options, and the training report.
 
 The decision value of a feature vector ``x`` is ``bias + weights @ x``.
 """
@@ -101,6 +102,7 @@ class Model:
             "feature_length": int(self.weights.size),
             "bias": self.bias,
             "weights_sha256": _digest(self.weights),
+            "settings_sha256": _settings_digest(self.bias, self.options.to_dict()),
             "report": self.report,
         }
         blob = np.frombuffer(json.dumps(metadata, sort_keys=True).encode("utf-8"), dtype=np.uint8)
@@ -111,6 +113,12 @@ class Model:
 
 def _digest(weights):
     return hashlib.sha256(np.ascontiguousarray(weights, dtype="<f4").tobytes()).hexdigest()
+
+
+def _settings_digest(bias, feature_options):
+    """SHA-256 of what besides the weights decides a model's scores."""
+    text = json.dumps({"bias": float(bias), "feature_options": feature_options}, sort_keys=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 def load_model(path=None):
@@ -140,6 +148,8 @@ def _parse(handle, name):
                 raise ModelError(f"{name} is not a fastdet model (arrays: {sorted(members)})")
             weights = archive["weights"]
             blob = archive["metadata"]
+        if not (isinstance(weights, np.ndarray) and isinstance(blob, np.ndarray)):
+            raise ModelError(f"{name} is not a fastdet model (its members are not arrays)")
     except ModelError:
         raise
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
@@ -171,6 +181,9 @@ def _parse(handle, name):
                          f"metadata says float32 ({length},)")
     if _digest(weights) != digest:
         raise ModelError(f"{name} failed its checksum: the weights were modified")
+    settings = metadata.get("settings_sha256")
+    if settings is not None and settings != _settings_digest(bias, options.to_dict()):
+        raise ModelError(f"{name} failed its checksum: the bias or feature options were modified")
     report = metadata.get("report", {})
     return Model(weights=weights, bias=bias, options=options,
                  report=report if isinstance(report, dict) else {})

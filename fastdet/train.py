@@ -184,6 +184,54 @@ def _fit_and_score(features, labels, train_mask, flips, C, seed):
     }, scores
 
 
+def cross_validate(features, labels, folds, held_out_fold, flips, grid, seed=0, log=None):
+    """Choose C and the decision threshold on the leak-free training folds.
+
+    Every fold except ``held_out_fold`` (the final test fold) is held out in
+    turn; the test fold is never looked at, so the final test accuracy stays
+    an honest figure.
+
+    Returns
+    -------
+    dict
+        ``C`` (best mean held-out accuracy), ``threshold`` (the margin that
+        maximises accuracy over the pooled out-of-fold scores of that C) and
+        the per-C mean accuracies.
+    """
+    log = log or (lambda message: None)
+    inner = [fold for fold in np.unique(folds) if fold != held_out_fold]
+    usable = folds != held_out_fold
+    results = {}
+    pooled = {}
+    for C in grid:
+        accuracies, scores, truth = [], [], []
+        for fold in inner:
+            train_mask = usable & (folds != fold)
+            test_mask = folds == fold
+            weights, bias = fit_linear_svm(
+                features[train_mask] if flips is None else
+                np.concatenate([features[train_mask], flips[train_mask]]),
+                labels[train_mask] if flips is None else
+                np.concatenate([labels[train_mask], labels[train_mask]]), C=C, seed=seed)
+            fold_scores = _decision(weights, bias, features[test_mask])
+            accuracies.append(float(np.mean((fold_scores > 0) == (labels[test_mask] == 1))))
+            scores.append(fold_scores)
+            truth.append(labels[test_mask])
+        results[C] = float(np.mean(accuracies))
+        pooled[C] = (np.concatenate(scores), np.concatenate(truth))
+        log(f"cross-validation C={C:g}: mean leak-free accuracy {results[C]:.4f}")
+    best = max(grid, key=lambda c: (results[c], -c))
+    scores, truth = pooled[best]
+    candidates = np.unique(np.round(scores, 3))
+    accuracy = [np.mean((scores > t) == (truth == 1)) for t in candidates]
+    top = np.max(accuracy)
+    # Among equally accurate thresholds take the one nearest the SVM's own 0.
+    threshold = float(min(candidates[np.asarray(accuracy) == top], key=abs))
+    return {"grid": [float(c) for c in grid], "mean_accuracy": [results[c] for c in grid],
+            "C": float(best), "threshold": threshold, "threshold_accuracy": float(top),
+            "folds": [int(f) for f in inner]}
+
+
 def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, seed=0,
           extra_negatives=(), log=None, return_test_scores=False):
     """Train a model on a data set folder and report both splits.
@@ -194,8 +242,9 @@ def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, se
         Folder with ``vehicles/`` and ``non-vehicles/``.
     options : FeatureOptions, optional
         Defaults to ``FeatureOptions()``.
-    C : float
-        LinearSVC regularisation.
+    C : float or sequence of float
+        LinearSVC regularisation; a sequence is a grid searched by
+        :func:`cross_validate` on the leak-free training folds.
     flip : bool
         Add horizontally flipped copies of the training crops.
     n_folds, test_fold : int
@@ -228,11 +277,16 @@ def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, se
     extracted = time.perf_counter()
     log(f"features: {features.shape[1]} per crop, {extracted - loaded:.1f} s")
     labels = dataset.labels
+    folds = leak_free_folds(dataset.groups, n_folds)
+    cv_report = None
+    if np.ndim(C) > 0:
+        cv_report = cross_validate(features, labels, folds, test_fold, flips, list(C), seed, log)
+        C = cv_report["C"]
+        log(f"chosen C={C:g}, decision threshold {cv_report['threshold']:+.3f}")
 
     random_test = random_split(labels, seed=seed)
     _, _, random_report, _ = _fit_and_score(features, labels, ~random_test, flips, C, seed)
     log(f"random split: accuracy {random_report['accuracy']:.4f}")
-    folds = leak_free_folds(dataset.groups, n_folds)
     train_mask = folds != test_fold
     weights, bias, leak_free_report, test_scores = _fit_and_score(features, labels, train_mask,
                                                                   flips, C, seed)
@@ -248,6 +302,7 @@ def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, se
         "random_split": random_report,
         "leak_free_split": {**leak_free_report, "n_folds": n_folds, "test_fold": test_fold},
         "fit_on": "leak-free training part",
+        "cross_validation": cv_report,
         "load_seconds": round(loaded - started, 2),
         "feature_seconds": round(extracted - loaded, 2),
         "total_seconds": round(time.perf_counter() - started, 2),

@@ -1,11 +1,20 @@
-"""Per-pixel colour kernel: tile sums of colour-histogram weights.
+"""Per-pixel colour kernels: box-averaged image and histogram-weight tile sums.
 
-The colour histogram's share of a window's score is linear in the per-pixel
-bin indicators, so it equals the window sum of a per-pixel weight
-``sum_c lut[c, value_c]``.  Windows are made of whole tiles (the tile side
-divides both the window side and the window step), so per-tile sums are all a
-frame needs; :func:`fastdet.kernels.score.add_tile_window_sums` adds them up
-per window.
+Both feed the colour part of a window's score (see :mod:`fastdet.kernels.score`):
+
+* spatial features are the window box-averaged by an integer factor, i.e. an
+  aligned crop of the whole box-averaged image;
+* the colour histogram's share of the score is linear in the per-pixel bin
+  indicators, so it equals the window sum of a per-pixel weight
+  ``sum_c lut[c, value_c]``.  Windows are made of whole tiles (the tile side
+  divides both the window side and the window step), so per-tile sums are all
+  a frame needs; :func:`fastdet.kernels.score.add_tile_window_sums` adds them
+  up per window.
+
+One pass over the colour image produces both.  Colour images always have
+three channels here, which the loops hard-code so LLVM can unroll them;
+indices are unsigned because Numba's negative-index wraparound would
+otherwise keep LLVM from vectorising the row loops.
 """
 
 import numpy as np
@@ -14,45 +23,79 @@ from numba import njit, uint64
 # Reassociation lets LLVM vectorise the per-tile reductions.
 _FASTMATH = {"reassoc", "nsz", "contract"}
 
+_C = uint64(3)
+
 
 @njit(cache=True, fastmath=_FASTMATH)
-def tile_weight_sums(image, lut, tile):
-    """Sum of ``sum_c lut[c, image[y, x, c]]`` over every ``tile x tile`` tile.
+def _colour_maps(image, lut, tile, factor, want_tiles, want_box, tiles, box):
+    height, width = image.shape[0], image.shape[1]
+    flat = image.reshape(height, width * 3)
+    lut_flat = lut.reshape(lut.size)
+    weight = np.zeros(max(width, 1), dtype=np.float32)
+    box_w = uint64(box.shape[1])
+    column_sum = np.zeros(max(width * 3, 1), dtype=np.float32)
+    t64 = uint64(tile)
+    f64 = uint64(factor)
+    tiles_x = uint64(tiles.shape[1])
+    scale = np.float32(1.0 / (factor * factor)) if factor > 0 else np.float32(0.0)
+    tile_rows = tiles.shape[0] * tile if want_tiles else 0
+    box_rows = box.shape[0] * factor if want_box else 0
+    for y in range(max(tile_rows, box_rows)):
+        src = flat[y]
+        if y < tile_rows:
+            for x in range(uint64(width)):
+                weight[x] = (lut_flat[uint64(src[x * _C])]
+                             + lut_flat[uint64(256) + uint64(src[x * _C + uint64(1)])]
+                             + lut_flat[uint64(512) + uint64(src[x * _C + uint64(2)])])
+            row = tiles[y // tile]
+            for tx in range(tiles_x):
+                total = np.float32(0.0)
+                for x in range(tx * t64, (tx + uint64(1)) * t64):
+                    total += weight[x]
+                row[tx] += total
+        if y < box_rows:
+            for k in range(uint64(box_w * f64 * _C)):
+                column_sum[k] += np.float32(src[k])
+            if (y + 1) % factor == 0:
+                dest = box[y // factor].reshape(box.shape[1] * 3)
+                for ox in range(box_w):
+                    for c in range(_C):
+                        total = np.float32(0.0)
+                        for dx in range(f64):
+                            total += column_sum[(ox * f64 + dx) * _C + c]
+                        dest[ox * _C + c] = total * scale
+                column_sum[:] = 0.0
+
+
+def colour_maps(image, lut=None, tile=8, factor=0):
+    """Histogram-weight tile sums and the box-averaged image, in one pass.
 
     Parameters
     ----------
-    image : ndarray of uint8, shape (H, W, C)
-        C-contiguous.
-    lut : ndarray of float32, shape (C, 256)
-        Weight of each channel value.
+    image : ndarray of uint8, shape (H, W, 3)
+        Colour-converted image (C-contiguous).
+    lut : ndarray of float32, shape (3, 256), optional
+        Weight of each channel value; ``None`` skips the tile sums.
     tile : int
-        Tile side; pixels beyond the last whole tile are ignored.
+        Tile side of the sums.
+    factor : int
+        Box-averaging factor of the spatial image; 0 skips it.
 
     Returns
     -------
-    ndarray of float32, shape (H // tile, W // tile)
+    tiles : ndarray of float32, shape (H // tile, W // tile) or (0, 0)
+        Sum over each tile of ``sum_c lut[c, image[y, x, c]]``.
+    box : ndarray of float32, shape (H // factor, W // factor, 3) or (0, 0, 3)
+        Mean of every ``factor x factor`` tile of ``image``.
     """
-    height, width, channels = image.shape
-    tiles_y, tiles_x = height // tile, width // tile
-    out = np.zeros((tiles_y, tiles_x), dtype=np.float32)
-    used = uint64(tiles_x * tile)
-    c64 = uint64(channels)
-    t64 = uint64(tile)
-    flat = image.reshape(height, width * channels)
-    lut_flat = lut.reshape(lut.size)
-    pixel = np.zeros(max(width, 1), dtype=np.float32)
-    for y in range(tiles_y * tile):
-        src = flat[y]
-        for x in range(used):
-            pixel[x] = lut_flat[uint64(src[x * c64])]
-        for c in range(uint64(1), c64):
-            offset = c * uint64(256)
-            for x in range(used):
-                pixel[x] += lut_flat[offset + uint64(src[x * c64 + c])]
-        row = out[y // tile]
-        for tx in range(uint64(tiles_x)):
-            total = np.float32(0.0)
-            for x in range(tx * t64, (tx + uint64(1)) * t64):
-                total += pixel[x]
-            row[tx] += total
-    return out
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise ValueError(f"expected a uint8 (H, W, 3) image, got {image.dtype} {image.shape}")
+    image = np.ascontiguousarray(image)
+    height, width = image.shape[:2]
+    want_tiles = lut is not None
+    want_box = factor > 0
+    tiles = np.zeros((height // tile, width // tile) if want_tiles else (0, 0), np.float32)
+    box = np.zeros((height // factor, width // factor, 3) if want_box else (0, 0, 3), np.float32)
+    lut = np.zeros((3, 256), np.float32) if lut is None else np.ascontiguousarray(lut, np.float32)
+    _colour_maps(image, lut, int(tile), int(factor), want_tiles, want_box, tiles, box)
+    return tiles, box

@@ -30,6 +30,10 @@ from numba import njit, prange, uint64
 # the cross product is ~1e-7 relative; 1e-4 leaves a wide margin.
 _NEAR_BOUNDARY = np.float32(1e-4)
 
+# How the float path treats channels: separately, or merged per pixel by the
+# largest magnitude compared in float64 or in float32 (see _histogram_cell_row).
+_SEPARATE, _MERGE_FLOAT64, _MERGE_FLOAT32 = 0, 1, 2
+
 
 def orientation_tables(nbins):
     """Boundary directions and exact boundary angles for ``nbins`` bins.
@@ -45,14 +49,13 @@ def orientation_tables(nbins):
         ``cos`` and ``sin`` of each boundary angle ``k * 180 / nbins``,
         computed in float64 (so that 90 degrees keeps a positive cosine).
     bounds : ndarray of float64, shape (nbins + 1,)
-        Boundary angles in degrees, rounded through float32 as scikit-image's
-        histogram code stores them.
+        Boundary angles in degrees, computed as scikit-image computes them
+        (``180. / nbins * i`` in double precision).
     """
-    angles = 180.0 / nbins * np.arange(nbins + 1, dtype=np.float64)
+    angles = np.array([180.0 / nbins * i for i in range(nbins + 1)], dtype=np.float64)
     radians = np.deg2rad(angles)
     cos_sin = np.stack([np.cos(radians), np.sin(radians)], axis=1).astype(np.float32)
-    bounds = angles.astype(np.float32).astype(np.float64)
-    return cos_sin, bounds
+    return cos_sin, angles
 
 
 @njit(cache=True, inline="always")
@@ -107,7 +110,7 @@ def _bin_row(gx, gy, count, cos_sin, bounds, nbins, magnitude, bins):
 
 
 @njit(cache=True)
-def _histogram_cell_row(image, cell_row, ppc_y, ppc_x, ncx, nbins, merge_channels,
+def _histogram_cell_row(image, cell_row, ppc_y, ppc_x, ncx, nbins, merge_mode,
                         cos_sin, bounds, out):
     """Fill ``out[cell_row]`` (shape (ncx, C_out, nbins))."""
     width = image.shape[1]
@@ -124,15 +127,19 @@ def _histogram_cell_row(image, cell_row, ppc_y, ppc_x, ncx, nbins, merge_channel
     row_out[:] = 0.0
     scale = np.float32(1.0 / (ppc_y * ppc_x))
     for y in range(cell_row * ppc_y, (cell_row + 1) * ppc_y):
-        if merge_channels:
+        if merge_mode != _SEPARATE:
             # scikit-image's multichannel rule: per pixel, the channel with the
             # largest gradient magnitude (first one on ties).  Magnitudes are
-            # compared as float64 hypot, like numpy's, because equal sums of
-            # squares can differ by an ulp there and so pick another channel.
+            # compared as hypot in the precision scikit-image works in (float64
+            # for integer images, float32 for float32 ones), because ties and
+            # near-ties decide the channel and differ between precisions.
             for c in range(channels):
                 _gradient_row(image, y, c, gx, gy)
                 for x in range(used):
-                    sq = math.hypot(np.float64(gx[x]), np.float64(gy[x]))
+                    if merge_mode == _MERGE_FLOAT32:
+                        sq = np.float64(np.hypot(gx[x], gy[x]))
+                    else:
+                        sq = math.hypot(np.float64(gx[x]), np.float64(gy[x]))
                     if c == 0 or sq > best_sq[x]:
                         best_sq[x] = sq
                         best_gx[x] = gx[x]
@@ -157,17 +164,17 @@ def _histogram_cell_row(image, cell_row, ppc_y, ppc_x, ncx, nbins, merge_channel
 
 
 @njit(cache=True)
-def _cell_histograms_serial(image, ppc_y, ppc_x, nbins, merge_channels, cos_sin, bounds, out):
+def _cell_histograms_serial(image, ppc_y, ppc_x, nbins, merge_mode, cos_sin, bounds, out):
     for cell_row in range(out.shape[0]):
         _histogram_cell_row(image, cell_row, ppc_y, ppc_x, out.shape[1], nbins,
-                            merge_channels, cos_sin, bounds, out)
+                            merge_mode, cos_sin, bounds, out)
 
 
 @njit(cache=True, parallel=True)
-def _cell_histograms_parallel(image, ppc_y, ppc_x, nbins, merge_channels, cos_sin, bounds, out):
+def _cell_histograms_parallel(image, ppc_y, ppc_x, nbins, merge_mode, cos_sin, bounds, out):
     for cell_row in prange(out.shape[0]):
         _histogram_cell_row(image, cell_row, ppc_y, ppc_x, out.shape[1], nbins,
-                            merge_channels, cos_sin, bounds, out)
+                            merge_mode, cos_sin, bounds, out)
 
 
 #: Integer gradients of uint8 images lie in [-255, 255] on both axes.
@@ -328,7 +335,10 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
         return out
     cos_sin, bounds = _tables(nbins)
     kernel = _cell_histograms_parallel if parallel else _cell_histograms_serial
-    kernel(np.asarray(image, dtype=np.float32), ppc_y, ppc_x, nbins, merge_channels,
+    merge_mode = _SEPARATE
+    if merge_channels:
+        merge_mode = _MERGE_FLOAT32 if image.dtype == np.float32 else _MERGE_FLOAT64
+    kernel(np.asarray(image, dtype=np.float32), ppc_y, ppc_x, nbins, merge_mode,
            cos_sin, bounds, out)
     return out
 

@@ -1,0 +1,269 @@
+"""Tests for the window-scoring kernels of ``fastdet.kernels.score`` and for
+``fastdet.kernels.colour.tile_weight_sums``, against explicit per-window
+slicing + ``np.dot`` / ``np.sum`` in float64 (``naive.py``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fastdet.kernels.colour import tile_weight_sums
+from fastdet.kernels.score import (add_hog_scores, add_spatial_scores, add_tile_window_sums,
+                                   window_count)
+from naive import (naive_tile_weight_sums, naive_tile_window_sums, naive_window_sums)
+
+RTOL = 1e-4
+
+
+def assert_scores_close(actual, expected, terms):
+    """``actual`` float32 == ``expected`` float64 to RTOL, relative to the
+    size of the summed terms (a score near zero is a difference of large
+    terms, so its error scales with them, not with it)."""
+    assert actual.dtype == np.float32
+    assert actual.shape == expected.shape
+    np.testing.assert_allclose(actual, expected, rtol=RTOL, atol=RTOL * max(terms, 1e-30))
+
+
+def grid_of(map_shape, window, step):
+    return (window_count(map_shape[0], window, step), window_count(map_shape[1], window, step))
+
+
+# -- window_count -------------------------------------------------------------
+@pytest.mark.parametrize("length, window, step, expected", [
+    (0, 1, 1, 0), (7, 8, 1, 0), (8, 8, 1, 1), (8, 8, 5, 1), (9, 8, 1, 2), (9, 8, 2, 1),
+    (10, 8, 2, 2), (23, 7, 4, 5), (24, 7, 4, 5), (25, 7, 4, 5), (26, 7, 4, 5), (27, 7, 4, 6),
+])
+def test_window_count(length, window, step, expected):
+    assert window_count(length, window, step) == expected
+    # Brute force: origins o = 0, step, ... with o + window <= length.
+    assert expected == len([o for o in range(0, length + 1, step) if o + window <= length])
+
+
+# -- HOG ----------------------------------------------------------------------
+def random_blocks(rng, shape):
+    return rng.random(shape, dtype=np.float32)
+
+
+@pytest.mark.parametrize("parallel", [False, True])
+@pytest.mark.parametrize("map_shape, n, features, step", [
+    ((23, 37), 7, 36, 1),
+    ((23, 37), 7, 36, 2),
+    ((23, 37), 7, 36, 3),
+    ((31, 29), 5, 108, 4),
+    ((19, 44), 3, 12, 5),
+    ((9, 13), 1, 9, 1),
+    ((9, 13), 1, 9, 3),
+    ((7, 7), 7, 36, 1),         # exactly one window
+    ((7, 7), 7, 36, 6),         # one window, whatever the step
+    ((6, 40), 7, 36, 2),        # 0 window rows
+    ((40, 6), 7, 36, 2),        # 0 window columns
+    ((5, 5), 7, 36, 1),         # 0 windows
+])
+def test_add_hog_scores_matches_naive(parallel, map_shape, n, features, step):
+    rng = np.random.default_rng(map_shape[0] * 100 + step)
+    blocks = random_blocks(rng, map_shape + (features,))
+    weights = rng.normal(size=(n, n, features)).astype(np.float32)
+    grid = grid_of(map_shape, n, step)
+    start = rng.normal(size=grid).astype(np.float32)
+    out = start.copy()
+    add_hog_scores(blocks, weights, step, out, parallel=parallel)
+    expected = start.astype(np.float64) + naive_window_sums(blocks, weights, step, grid)
+    assert_scores_close(out, expected, np.abs(weights).sum())
+
+
+@pytest.mark.parametrize("parallel", [False, True])
+def test_add_hog_scores_on_a_partial_grid(parallel):
+    # A grid smaller than what fits scores the top-left windows only.
+    rng = np.random.default_rng(1)
+    blocks = random_blocks(rng, (20, 30, 36))
+    weights = rng.normal(size=(7, 7, 36)).astype(np.float32)
+    out = np.zeros((3, 4), np.float32)
+    add_hog_scores(blocks, weights, 2, out, parallel=parallel)
+    assert_scores_close(out, naive_window_sums(blocks, weights, 2, (3, 4)),
+                        np.abs(weights).sum())
+
+
+@pytest.mark.parametrize("parallel", [False, True])
+def test_hog_scores_pick_the_right_window(parallel):
+    # One non-zero block: only the windows that contain it score, with the
+    # weight at its position within each window.
+    n, features, step = 3, 4, 2
+    blocks = np.zeros((9, 11, features), np.float32)
+    blocks[4, 6, 2] = 1.0
+    weights = np.arange(n * n * features, dtype=np.float32).reshape(n, n, features) + 1
+    grid = grid_of(blocks.shape, n, step)
+    out = np.zeros(grid, np.float32)
+    add_hog_scores(blocks, weights, step, out, parallel=parallel)
+    expected = np.zeros(grid, np.float32)
+    for iy in range(grid[0]):
+        for ix in range(grid[1]):
+            dy, dx = 4 - iy * step, 6 - ix * step
+            if 0 <= dy < n and 0 <= dx < n:
+                expected[iy, ix] = weights[dy, dx, 2]
+    np.testing.assert_array_equal(out, expected)
+    assert np.count_nonzero(out) == 4
+
+
+# -- spatial ------------------------------------------------------------------
+@pytest.mark.parametrize("parallel", [False, True])
+@pytest.mark.parametrize("map_shape, size, step", [
+    ((45, 71), 32, 4),
+    ((45, 71), 32, 13),
+    ((37, 29), 16, 1),
+    ((37, 29), 16, 3),
+    ((33, 50), 8, 5),
+    ((32, 32), 32, 8),          # exactly one window
+    ((31, 90), 32, 4),          # 0 window rows
+    ((90, 31), 32, 4),          # 0 window columns
+    ((10, 10), 32, 4),          # 0 windows
+])
+def test_add_spatial_scores_matches_naive(parallel, map_shape, size, step):
+    rng = np.random.default_rng(map_shape[1] * 10 + step)
+    spatial = rng.integers(0, 256, map_shape + (3,)).astype(np.float32)
+    weights = rng.normal(scale=0.01, size=(size, size, 3)).astype(np.float32)
+    grid = grid_of(map_shape, size, step)
+    start = rng.normal(size=grid).astype(np.float32)
+    out = start.copy()
+    add_spatial_scores(spatial, weights, step, out, parallel=parallel)
+    expected = start.astype(np.float64) + naive_window_sums(spatial, weights, step, grid)
+    assert_scores_close(out, expected, 255 * np.abs(weights).sum())
+
+
+def test_scores_add_up():
+    # The kernels add into ``out``: HOG then spatial == their sum.
+    rng = np.random.default_rng(2)
+    blocks = random_blocks(rng, (15, 23, 36))
+    hog_w = rng.normal(size=(7, 7, 36)).astype(np.float32)
+    spatial = rng.random((64, 96, 3), dtype=np.float32) * 255
+    spatial_w = rng.normal(scale=0.01, size=(32, 32, 3)).astype(np.float32)
+    grid = grid_of(blocks.shape, 7, 2)  # step 2 cells = 16 px = 8 spatial px
+    assert grid == grid_of(spatial.shape, 32, 8)
+    out = np.full(grid, -1.5, np.float32)
+    add_hog_scores(blocks, hog_w, 2, out)
+    add_spatial_scores(spatial, spatial_w, 8, out)
+    expected = (-1.5 + naive_window_sums(blocks, hog_w, 2, grid)
+                + naive_window_sums(spatial, spatial_w, 8, grid))
+    assert_scores_close(out, expected, np.abs(hog_w).sum() + 255 * np.abs(spatial_w).sum())
+
+
+# -- colour-histogram tiles -------------------------------------------------
+@pytest.mark.parametrize("shape, tile", [
+    ((67, 45, 3), 8),
+    ((67, 45, 3), 16),
+    ((64, 64, 3), 64),
+    ((63, 64, 3), 64),          # no whole tile
+    ((37, 53, 1), 5),
+    ((9, 130, 3), 1),
+    ((5, 5, 3), 7),             # no whole tile
+])
+def test_tile_weight_sums_matches_naive(shape, tile):
+    rng = np.random.default_rng(shape[0] + tile)
+    image = rng.integers(0, 256, shape, dtype=np.uint8)
+    lut = rng.normal(size=(shape[2], 256)).astype(np.float32)
+    actual = tile_weight_sums(image, lut, tile)
+    expected = naive_tile_weight_sums(image, lut, tile)
+    assert actual.dtype == np.float32
+    assert actual.shape == (shape[0] // tile, shape[1] // tile)
+    np.testing.assert_allclose(actual, expected, rtol=RTOL,
+                               atol=RTOL * tile * tile * np.abs(lut).max(initial=1.0) * shape[2])
+
+
+def test_tile_weight_sums_reads_each_channel_with_its_own_lut():
+    image = np.zeros((4, 4, 3), np.uint8)
+    image[..., 0], image[..., 1], image[..., 2] = 10, 20, 30
+    image[0, 0] = (255, 0, 1)
+    lut = np.zeros((3, 256), np.float32)
+    lut[0, 10], lut[1, 20], lut[2, 30] = 1.0, 100.0, 10000.0
+    lut[0, 255], lut[1, 0], lut[2, 1] = 0.5, 0.25, 0.125
+    out = tile_weight_sums(image, lut, 2)
+    expected = np.full((2, 2), 4 * 10101.0, np.float32)
+    expected[0, 0] = 3 * 10101.0 + 0.875
+    np.testing.assert_array_equal(out, expected)
+
+
+@pytest.mark.parametrize("tiles_shape, size, step", [
+    ((23, 37), 4, 1),
+    ((23, 37), 4, 3),
+    ((23, 37), 8, 2),
+    ((19, 21), 1, 1),
+    ((19, 21), 2, 5),
+    ((4, 4), 4, 1),             # exactly one window
+    ((3, 30), 4, 1),            # 0 window rows
+    ((30, 3), 4, 1),            # 0 window columns
+    ((2, 2), 4, 2),             # 0 windows
+])
+def test_add_tile_window_sums_matches_naive(tiles_shape, size, step):
+    rng = np.random.default_rng(tiles_shape[0] * size + step)
+    tiles = rng.normal(size=tiles_shape).astype(np.float32) * 100
+    grid = grid_of(tiles_shape, size, step)
+    start = rng.normal(size=grid).astype(np.float32)
+    out = start.copy()
+    add_tile_window_sums(tiles, size, step, out)
+    expected = start.astype(np.float64) + naive_tile_window_sums(tiles, size, step, grid)
+    assert_scores_close(out, expected, size * size * 100 * 5)
+
+
+@pytest.mark.parametrize("hist_bins", [32, 16, 7])
+@pytest.mark.parametrize("step_px", [8, 16, 24, 48])
+def test_histogram_part_equals_per_window_histograms(hist_bins, step_px):
+    """tile sums + window sums of a per-value weight == weights . np.histogram
+    of each window's pixels (what the detector relies on)."""
+    rng = np.random.default_rng(hist_bins + step_px)
+    window = 64
+    image = rng.integers(0, 256, (141, 203, 3), dtype=np.uint8)
+    hist_w = rng.normal(size=(3, hist_bins)).astype(np.float32)
+    edges = np.arange(256) * hist_bins // 256               # value -> bin
+    lut = np.ascontiguousarray(hist_w[:, edges])
+    tile = int(np.gcd(step_px, window))
+    grid = grid_of(image.shape, window, step_px)
+    out = np.zeros(grid, np.float32)
+    add_tile_window_sums(tile_weight_sums(image, lut, tile), window // tile, step_px // tile, out)
+    expected = np.zeros(grid)
+    for iy in range(grid[0]):
+        for ix in range(grid[1]):
+            pixels = image[iy * step_px:iy * step_px + window, ix * step_px:ix * step_px + window]
+            for c in range(3):
+                counts = np.bincount(edges[pixels[:, :, c].ravel()], minlength=hist_bins)
+                expected[iy, ix] += np.dot(counts, hist_w[c].astype(np.float64))
+    assert_scores_close(out, expected, window * window * 3 * np.abs(hist_w).max())
+
+
+# -- grids that do not fit ------------------------------------------------
+@pytest.mark.parametrize("extra", [(1, 0), (0, 1), (1, 1), (5, 0)])
+@pytest.mark.parametrize("parallel", [False, True])
+def test_hog_grid_that_does_not_fit_raises(extra, parallel):
+    rng = np.random.default_rng(0)
+    blocks = random_blocks(rng, (23, 37, 36))
+    weights = np.ones((7, 7, 36), np.float32)
+    ny, nx = grid_of(blocks.shape, 7, 3)
+    out = np.zeros((ny + extra[0], nx + extra[1]), np.float32)
+    with pytest.raises(ValueError):
+        add_hog_scores(blocks, weights, 3, out, parallel=parallel)
+    assert not out.any(), "a rejected grid must be left untouched"
+
+
+@pytest.mark.parametrize("extra", [(1, 0), (0, 1)])
+def test_spatial_grid_that_does_not_fit_raises(extra):
+    spatial = np.ones((45, 71, 3), np.float32)
+    weights = np.ones((32, 32, 3), np.float32)
+    ny, nx = grid_of(spatial.shape, 32, 4)
+    with pytest.raises(ValueError):
+        add_spatial_scores(spatial, weights, 4, np.zeros((ny + extra[0], nx + extra[1]),
+                                                         np.float32))
+
+
+@pytest.mark.parametrize("extra", [(1, 0), (0, 1)])
+def test_tile_grid_that_does_not_fit_raises(extra):
+    tiles = np.ones((23, 37), np.float32)
+    ny, nx = grid_of(tiles.shape, 8, 2)
+    with pytest.raises(ValueError):
+        add_tile_window_sums(tiles, 8, 2, np.zeros((ny + extra[0], nx + extra[1]), np.float32))
+
+
+def test_window_larger_than_the_map_with_a_grid_raises():
+    # A one-window grid on a map smaller than the window.
+    with pytest.raises(ValueError):
+        add_hog_scores(np.ones((5, 5, 4), np.float32), np.ones((7, 7, 4), np.float32), 1,
+                       np.zeros((1, 1), np.float32))
+    with pytest.raises(ValueError):
+        add_tile_window_sums(np.ones((3, 3), np.float32), 4, 1, np.zeros((1, 1), np.float32))
