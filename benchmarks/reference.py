@@ -8,7 +8,7 @@ per search scale:
 2. run ``skimage.feature.hog(..., feature_vector=False)`` once per channel
    on the whole scaled region ("HOG once per scale, sub-sample windows");
 3. for each window, in Python: slice that window's HOG blocks, cut the
-   window's pixels and compute the spatial (``cv2.resize`` to ``S x S``) and
+   window's pixels and compute the spatial (each window averaged down to ``S x S``) and
    colour-histogram (``np.histogram``) features, stack them, then call
    ``scaler.transform`` and the scikit-learn SVM on that single window;
 4. add every hit window to a heat map, threshold it, label it with
@@ -177,8 +177,11 @@ class ReferenceDetector:
             n = self.layout.blocks_per_window
             parts.append(hog_blocks[block_y:block_y + n, block_x:block_x + n].ravel())
         if options.spatial_size:
+            # The published code resizes each window to the spatial size; fastdet
+            # defines that resize as the exact mean of each square tile.
             size = options.spatial_size
-            parts.append(cv2.resize(window, (size, size), interpolation=cv2.INTER_AREA).ravel())
+            factor = WINDOW // size
+            parts.append(window.reshape(size, factor, size, factor, 3).mean(axis=(1, 3)).ravel())
         if options.hist_bins:
             parts.extend(np.histogram(window[:, :, c], bins=options.hist_bins, range=(0, 256))[0]
                          for c in range(3))

@@ -27,6 +27,10 @@ def atomic_path(path, suffix=None):
                                         dir=path.parent if str(path.parent) else ".")
     os.close(handle)
     tmp = Path(tmp_name)
+    # mkstemp creates 0600 files; give the output the permissions a plain open() would.
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
     try:
         yield tmp
         os.replace(tmp, path)

@@ -141,6 +141,25 @@ def cmd_mine(args):
     return 0
 
 
+# -- tune -------------------------------------------------------------------
+def cmd_tune(args):
+    from .atomic import atomic_path
+    from .config import load_config
+    from .evaluate import load_annotations
+    from .model import load_model
+    from .tune import as_toml, format_results, tune
+
+    annotations = load_annotations(args.annotations)
+    results = tune(load_model(args.model), args.sources, annotations, load_config(args.config),
+                   log=lambda line: print(line, file=sys.stderr))
+    print(format_results(results, top=args.top))
+    if args.out:
+        with atomic_path(args.out) as tmp:
+            Path(tmp).write_text(as_toml(results[0]))
+        print(f"best thresholds written to {args.out}")
+    return 0
+
+
 # -- bench ------------------------------------------------------------------
 def cmd_bench(args):
     from .bench import format_stages, format_table, run_benchmark
@@ -247,6 +266,18 @@ def build_parser():
                       help="a hit overlapping every vehicle less than this is a negative")
     _add_model_options(mine)
     mine.set_defaults(handler=cmd_mine)
+
+    tune = sub.add_parser("tune", help="choose detection thresholds on annotated frames")
+    tune.add_argument("sources", nargs="+", metavar="SOURCE", help="videos and/or images")
+    tune.add_argument("--annotations", required=True, metavar="A.json")
+    tune.add_argument("--out", metavar="CONFIG.toml", help="write the best thresholds as TOML")
+    tune.add_argument("--top", type=int, default=10, help="rows of the table to print")
+    tune.add_argument("--model", metavar="M", help="model file (default: bundled)")
+    tune.add_argument("--config", metavar="C", help="TOML config with the scales and box filters")
+    tune.set_defaults(handler=cmd_tune)
+
+    from .commands_viz import add_viz_parser
+    add_viz_parser(sub)
 
     bench = sub.add_parser("bench", help="per-frame latency of fastdet and its peers")
     bench.add_argument("--video", help="video to time (default: the shared test video)")

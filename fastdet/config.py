@@ -161,18 +161,31 @@ class BoxConfig:
         Allowed width / height ratio.
     horizon_y : float
         Boxes lying entirely above this line (bottom edge <= it) are dropped.
+    width_scale, height_scale : float
+        Box shape correction, applied about the box centre before the
+        filters: square windows make heat blobs narrower and taller than
+        the (wide) cars they cover.  Fitted by ``fastdet tune``.
+    center_dy : float
+        Vertical shift of the box centre, as a fraction of the box height.
     """
 
     min_size: float = 24.0
     min_aspect: float = 0.5
     max_aspect: float = 3.0
     horizon_y: float = 380.0
+    width_scale: float = 1.0
+    height_scale: float = 1.0
+    center_dy: float = 0.0
 
     def __post_init__(self):
-        for name in ("min_size", "min_aspect", "max_aspect", "horizon_y"):
+        for name in ("min_size", "min_aspect", "max_aspect", "horizon_y", "width_scale",
+                     "height_scale", "center_dy"):
             _number(f"boxes.{name}", getattr(self, name))
         if not 0 < self.min_aspect <= self.max_aspect:
             raise ConfigError("boxes.min_aspect must be > 0 and <= boxes.max_aspect")
+        for name in ("width_scale", "height_scale"):
+            if not 0.25 <= getattr(self, name) <= 4:
+                raise ConfigError(f"boxes.{name} must be in [0.25, 4], got {getattr(self, name)!r}")
 
 
 @dataclass(frozen=True)

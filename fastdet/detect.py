@@ -404,12 +404,18 @@ class Detector:
         frame_size : tuple of int
             ``(width, height)`` of the frame, for the size-relative filters.
         """
+        boxes, peaks = self.heat_components(heat, origin)
+        return self.finish_boxes(boxes, peaks, frame_size)
+
+    def heat_components(self, heat, origin):
+        """Boxes (refined per ``heat.peak_fraction``) and peak heat of each blob."""
+        empty = (np.zeros((0, 4), np.int32), np.zeros(0, np.float32))
         if heat.size == 0:
-            return Detections.empty()
+            return empty
         labels, count = label_components(heat > self.config.heat.threshold,
                                          self.config.heat.connectivity)
         if count == 0:
-            return Detections.empty()
+            return empty
         peaks = component_max(labels, count, heat)
         fraction = self.config.heat.peak_fraction
         if fraction > 0:
@@ -418,8 +424,35 @@ class Detector:
         else:
             boxes = component_boxes(labels, count)
         boxes += np.array([origin[0], origin[1], origin[0], origin[1]], dtype=np.int32)
+        return boxes, peaks
+
+    def finish_boxes(self, boxes, peaks, frame_size):
+        """Shape-correct and filter blob boxes into :class:`Detections`."""
+        boxes = self.reshape_boxes(boxes, frame_size)
         keep = self.box_filter(boxes, frame_size)
         return Detections(boxes[keep], peaks[keep])
+
+    def reshape_boxes(self, boxes, frame_size):
+        """Apply the ``[boxes]`` shape correction about each box centre, clipped to the frame."""
+        cfg = self.config.boxes
+        if cfg.width_scale == 1 and cfg.height_scale == 1 and cfg.center_dy == 0:
+            return boxes
+        xyxy = boxes.astype(np.float64)
+        cx = (xyxy[:, 0] + xyxy[:, 2]) / 2
+        cy = (xyxy[:, 1] + xyxy[:, 3]) / 2
+        half_w = (xyxy[:, 2] - xyxy[:, 0]) * cfg.width_scale / 2
+        height = xyxy[:, 3] - xyxy[:, 1]
+        half_h = height * cfg.height_scale / 2
+        cy = cy + cfg.center_dy * height
+        out = np.stack([cx - half_w, cy - half_h, cx + half_w, cy + half_h], axis=1)
+        out = np.round(out)
+        width, height = frame_size
+        out[:, 0] = np.clip(out[:, 0], 0, width - 1)
+        out[:, 1] = np.clip(out[:, 1], 0, height - 1)
+        # A box keeps at least one pixel after rounding and clipping.
+        out[:, 2] = np.clip(out[:, 2], out[:, 0] + 1, width)
+        out[:, 3] = np.clip(out[:, 3], out[:, 1] + 1, height)
+        return out.astype(np.int32)
 
     def box_filter(self, boxes, frame_size):
         """Boolean mask of the boxes that pass the ``[boxes]`` sanity filters."""

@@ -78,7 +78,7 @@ class FeatureOptions:
         Whether the HOG group is used.
     """
 
-    color_space: str = "YCrCb"
+    color_space: str = "HLS"
     hog_channel: str | int = "all"
     orientations: int = 9
     pixels_per_cell: int = 8

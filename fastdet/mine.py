@@ -1,9 +1,10 @@
 """Hard-negative mining: save the detector's false hits as training crops.
 
 The loop is train -> mine -> retrain: run a model over annotated frames, keep
-every hit window that overlaps no annotated vehicle (IoU below a threshold,
-difficult vehicles included, so a car is never saved as a negative), save it
-as a 64x64 crop, and train again with those crops as extra non-vehicles
+every hit window that overlaps no annotated vehicle -- IoU below a threshold
+(0.1) and, so that a small window on a big car's tail light is not taken for
+background, less than half of the window on any vehicle; difficult vehicles
+count too, so a car is never saved as a negative -- save it as a 64x64 crop, and train again with those crops as extra non-vehicles
 (``fastdet train DATA --extra-negatives DIR``).
 
 Sources are images (annotated under their file name) or videos (annotated as
@@ -72,6 +73,39 @@ def annotated_frames(source, annotations):
         yield source.name, frame
 
 
+def background_hits(boxes, vehicles, max_iou=0.1, max_cover=0.5):
+    """Which hit boxes lie on no vehicle.
+
+    Parameters
+    ----------
+    boxes : ndarray, shape (N, 4)
+        Hit windows ``[x1, y1, x2, y2]``.
+    vehicles : ndarray, shape (M, 4)
+        Annotated vehicles (difficult ones included).
+    max_iou : float
+        Largest IoU with a vehicle a background hit may have.
+    max_cover : float
+        Largest fraction of its own area a background hit may share with a
+        vehicle.
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    vehicles = np.asarray(vehicles, dtype=np.float64).reshape(-1, 4)
+    if len(vehicles) == 0:
+        return np.ones(len(boxes), dtype=bool)
+    iou = iou_matrix(boxes, vehicles)
+    ix = np.clip(np.minimum(boxes[:, None, 2], vehicles[None, :, 2])
+                 - np.maximum(boxes[:, None, 0], vehicles[None, :, 0]), 0, None)
+    iy = np.clip(np.minimum(boxes[:, None, 3], vehicles[None, :, 3])
+                 - np.maximum(boxes[:, None, 1], vehicles[None, :, 1]), 0, None)
+    area = ((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]))[:, None]
+    cover = ix * iy / np.maximum(area, 1)
+    return (iou.max(axis=1) < max_iou) & (cover.max(axis=1) < max_cover)
+
+
 def mine(detector, sources, annotations, out_dir, max_iou=0.1):
     """Save every hit window that overlaps no annotated vehicle.
 
@@ -86,7 +120,8 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
     out_dir : str or Path
         Folder for the crops (created); files are ``<source>_<key>_<n>.png``.
     max_iou : float
-        A hit whose IoU with every annotated box is below this is a negative.
+        A hit whose IoU with every annotated box is below this is a negative
+        (unless half of it or more lies on one of the boxes).
 
     Returns
     -------
@@ -102,9 +137,8 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
             hits = detector.hits(frame)
             hits_total += len(hits.scores)
             truth = np.array([a["box"] for a in annotations[key]], dtype=np.float64).reshape(-1, 4)
-            overlap = iou_matrix(hits.boxes, truth).max(axis=1) if len(truth) else \
-                np.zeros(len(hits.scores))
-            for n, box in enumerate(hits.boxes[overlap < max_iou]):
+            negative = background_hits(hits.boxes, truth, max_iou)
+            for n, box in enumerate(hits.boxes[negative]):
                 x1, y1, x2, y2 = (int(v) for v in box)
                 crop = cv2.resize(frame[y1:y2, x1:x2], (WINDOW, WINDOW),
                                   interpolation=cv2.INTER_AREA)

@@ -51,7 +51,7 @@ CHANNEL_NAMES = {
 }
 
 #: Display names of the feature groups, in feature-vector order.
-GROUP_NAMES = ("HOG", "spatial", "colour histogram")
+GROUP_NAMES = ("HOG", "spatial", "histogram")
 
 
 # -- frames (OpenCV) --------------------------------------------------------
@@ -238,13 +238,13 @@ def _box_polygons(boxes):
                      np.stack([x2, y2], 1), np.stack([x1, y2], 1)], axis=1)
 
 
-def _outline_boxes(axes, boxes, colours, linewidth=1.0, linestyle="solid", alpha=1.0, label=None):
+def _outline_boxes(axes, boxes, colours, linewidth=1.0, linestyle="solid", alpha=1.0):
     """Draw unfilled boxes on ``axes`` in one collection (fast for thousands of boxes)."""
     from matplotlib.collections import PolyCollection
 
     collection = PolyCollection(_box_polygons(boxes), closed=True, facecolors="none",
                                 edgecolors=colours, linewidths=linewidth, linestyles=linestyle,
-                                alpha=alpha, label=label)
+                                alpha=alpha)
     axes.add_collection(collection)
     return collection
 
@@ -407,22 +407,29 @@ def hog_glyphs(cells, cell_px, levels=16):
     return image.astype(np.float32) / 255.0
 
 
+#: Pixels above each panel of :func:`hog_figure` (its title) and above the grid (the caption).
+_HOG_TITLE_PX, _HOG_CAPTION_PX = 30, 40
+
+
 def _hog_panel_px(image_shape, options):
-    """Pixel ``(width, height)`` of one panel of :func:`hog_figure`."""
+    """Pixel ``(width, height)`` of the picture in one panel of :func:`hog_figure`."""
     height, width = image_shape[:2]
     cells_x = max(1, width // options.pixels_per_cell)
     # About 10 screen pixels per cell so glyphs stay readable, within sane bounds.
     panel_w = int(np.clip(cells_x * 10, 480, 1280))
     aspect = float(np.clip(height / width, 0.25, 4.0))
-    return panel_w, int(round(panel_w * aspect)) + 40  # + title
+    return panel_w, int(round(panel_w * aspect))
 
 
 def hog_figure_size(image_shape, options):
-    """``(width, height)`` in pixels of :func:`hog_figure` for an image of ``image_shape``."""
+    """``(width, height)`` in pixels of :func:`hog_figure` for an image of ``image_shape``.
+
+    Two panels per row (the image, then one per HOG channel), each
+    :func:`_hog_panel_px` plus a title line, under a caption line.
+    """
     panel_w, panel_h = _hog_panel_px(image_shape, options)
     panels = 1 + (3 if options.hog_channel == "all" else 1)
-    columns = 2
-    return columns * panel_w, math.ceil(panels / columns) * panel_h
+    return 2 * panel_w, math.ceil(panels / 2) * (panel_h + _HOG_TITLE_PX) + _HOG_CAPTION_PX
 
 
 def hog_figure(image_bgr, options, path):
@@ -459,30 +466,34 @@ def hog_figure(image_bgr, options, path):
         names = [f"{options.color_space} {CHANNEL_NAMES[options.color_space][options.hog_channel]}"]
 
     width, height = hog_figure_size(image_bgr.shape, options)
-    panel_w, _ = _hog_panel_px(image_bgr.shape, options)
+    panel_w, panel_h = _hog_panel_px(image_bgr.shape, options)
     figure = _new_figure(width, height)
-    rows = math.ceil((1 + len(names)) / 2)
-    grid = figure.subplots(rows, 2, squeeze=False)
-    figure.subplots_adjust(left=0.005, right=0.995, bottom=0.005, top=1 - 34 / height,
-                           wspace=0.02, hspace=40 / (height / rows))
-    # Cells beyond the last whole cell are ignored by the kernel; crop the
+
+    def panel(index):
+        # Exact pixel rectangles: fractions of a gridspec would let titles
+        # collide with the caption at some image aspects.
+        row, col = divmod(index, 2)
+        top = height - _HOG_CAPTION_PX - row * (panel_h + _HOG_TITLE_PX) - _HOG_TITLE_PX
+        return figure.add_axes((col * panel_w / width + 0.002, (top - panel_h) / height,
+                                panel_w / width - 0.004, panel_h / height))
+
+    # Pixels beyond the last whole cell are ignored by the kernel; crop the
     # picture the same way so image and glyphs line up.
     covered = image_bgr[:cells.shape[0] * ppc, :cells.shape[1] * ppc]
-    _show_image(grid[0, 0], _rgb(covered), f"image {image_bgr.shape[1]}x{image_bgr.shape[0]}")
+    _show_image(panel(0), _rgb(covered), f"image {image_bgr.shape[1]}x{image_bgr.shape[0]}")
     cell_px = max(ppc, math.ceil(panel_w / cells.shape[1]))
     for index, name in enumerate(names, start=1):
-        axes = grid[index // 2, index % 2]
+        axes = panel(index)
         axes.imshow(hog_glyphs(cells[:, :, index - 1], cell_px), cmap="gray", vmin=0, vmax=1,
                     interpolation="antialiased")
         axes.set_xticks([])
         axes.set_yticks([])
         axes.set_title(f"HOG of {name}", fontsize=11)
-    for index in range(1 + len(names), rows * 2):
-        grid[index // 2, index % 2].set_axis_off()
     used = "" if options.use_hog else " (this model does not use HOG)"
-    figure.suptitle(f"{options.orientations} orientations, {ppc}-pixel cells; line length "
-                    f"proportional to the bin, relative to each channel's 99th percentile{used}",
-                    fontsize=11)
+    figure.text(0.5, 1 - 10 / height,
+                f"{options.orientations} orientations, {ppc}-pixel cells; line length "
+                f"proportional to the bin, relative to each channel's 99th percentile{used}",
+                ha="center", va="top", fontsize=11)
     return _save_figure(figure, path)
 
 
@@ -510,6 +521,9 @@ def features_figure(image_bgr, model, path):
     -------
     Path
     """
+    from matplotlib.collections import LineCollection
+    from matplotlib.colors import to_rgba
+
     from .features import WINDOW, crop_features
 
     check_output_path(path)
@@ -524,12 +538,18 @@ def features_figure(image_bgr, model, path):
               if edges[i + 1] > edges[i]]
 
     figure = _new_figure(*FEATURES_FIGURE_SIZE)
-    layout = figure.add_gridspec(3, 5, height_ratios=(1.1, 1, 1), left=0.06, right=0.98,
-                                 bottom=0.06, top=0.95, hspace=0.4, wspace=0.3)
-    _show_image(figure.add_subplot(layout[0, 0]), _rgb(crop),
+    total = features.size
+    # Each group gets its own column, at least a quarter of the width: the 96
+    # histogram bins would be a sliver on an axis shared with 5000 HOG values.
+    widths = [max(stop - start, total / 4) for _, start, stop in groups]
+    layout = figure.add_gridspec(3, len(groups), height_ratios=(0.6, 1, 1), width_ratios=widths,
+                                 left=0.075, right=0.99, bottom=0.06, top=0.97, hspace=0.35,
+                                 wspace=0.2)
+    header = layout[0, :].subgridspec(1, 5, wspace=0.3)
+    _show_image(figure.add_subplot(header[0, 0]), _rgb(crop),
                 f"crop {image_bgr.shape[1]}x{image_bgr.shape[0]}"
                 + (" -> 64x64" if image_bgr.shape[:2] != (WINDOW, WINDOW) else ""))
-    summary = figure.add_subplot(layout[0, 1:])
+    summary = figure.add_subplot(header[0, 1:])
     summary.set_axis_off()
     verdict = "vehicle" if margin > 0 else "non-vehicle"
     lines = [f"SVM margin {margin:+.3f}  ->  {verdict}", f"bias {model.bias:+.3f}"]
@@ -540,32 +560,43 @@ def features_figure(image_bgr, model, path):
     top = np.argsort(-np.abs(contributions))[:3]
     lines.append("largest single contributions: "
                  + ", ".join(f"#{i} ({_group_of(i, groups)}) {contributions[i]:+.3f}" for i in top))
-    summary.text(0.0, 0.95, "\n".join(lines), va="top", ha="left", fontsize=12, family="monospace",
+    summary.text(0.0, 0.9, "\n".join(lines), va="top", ha="left", fontsize=12, family="monospace",
                  transform=summary.transAxes)
 
-    index = np.arange(features.size)
-    raw = figure.add_subplot(layout[1, :])
-    raw.plot(index, features, linewidth=0.5, color="tab:blue")
-    # HOG values are ~0-0.3 while spatial pixels reach 255 and histogram
-    # counts thousands: a symmetric log scale keeps all three readable.
-    raw.set_yscale("symlog", linthresh=0.05)
-    raw.set_ylabel("raw value")
-    raw.set_title("raw features (crop_features)", fontsize=11)
-    contribution_axes = figure.add_subplot(layout[2, :], sharex=raw)
-    colours = np.where(contributions >= 0, "tab:green", "tab:red")
-    contribution_axes.vlines(index, 0, contributions, colors=colours, linewidth=0.6)
-    contribution_axes.axhline(0, color="black", linewidth=0.5)
-    contribution_axes.set_ylabel("feature x weight")
-    contribution_axes.set_xlabel("feature index")
-    contribution_axes.set_title("contribution of each feature to the margin (scaler folded into "
-                                "the weights); green pushes towards vehicle", fontsize=11)
-    for axes in (raw, contribution_axes):
-        axes.set_xlim(0, features.size)
-        for name, start, stop in groups:
-            if start > 0:
-                axes.axvline(start, color="black", linestyle="--", linewidth=0.8)
-            axes.text((start + stop) / 2, 1.0, name, transform=axes.get_xaxis_transform(),
-                      ha="center", va="bottom", fontsize=9, color="dimgray")
+    shared_contribution_axis = None
+    for column, (name, start, stop) in enumerate(groups):
+        index = np.arange(start, stop)
+        raw = figure.add_subplot(layout[1, column])
+        # Raw values: each group on its own linear scale (HOG ~0-0.3, spatial
+        # pixels 0-255, histogram counts in the thousands).
+        raw.plot(index, features[start:stop], linewidth=0.5, color="tab:blue")
+        raw.set_title(f"raw {name}", fontsize=11)
+        part = contributions[start:stop]
+        contribution = figure.add_subplot(layout[2, column], sharex=raw,
+                                          sharey=shared_contribution_axis)
+        shared_contribution_axis = shared_contribution_axis or contribution
+        # One LineCollection from an (N, 2, 2) array: ``vlines`` builds a masked
+        # array per line, seconds for the ~8000 features.
+        stems = np.zeros((part.size, 2, 2))
+        stems[:, :, 0] = index[:, None]
+        stems[:, 1, 1] = part
+        contribution.add_collection(LineCollection(
+            stems, linewidths=0.6, colors=np.where((part >= 0)[:, None], to_rgba("tab:green"),
+                                                   to_rgba("tab:red"))))
+        contribution.autoscale_view()
+        contribution.axhline(0, color="black", linewidth=0.5)
+        contribution.set_title(f"{name} x weight (sum {part.sum():+.3f})", fontsize=11)
+        contribution.set_xlabel("feature index")
+        raw.set_xlim(start - 0.5, stop - 0.5)
+        if name == GROUP_NAMES[2]:
+            # One histogram per colour channel, side by side.
+            bins = model.options.hist_bins
+            for axes in (raw, contribution):
+                for boundary in range(start + bins, stop, bins):
+                    axes.axvline(boundary - 0.5, color="gray", linestyle=":", linewidth=0.8)
+        if column == 0:
+            raw.set_ylabel("raw value")
+            contribution.set_ylabel("contribution to the margin\n(green: towards vehicle)")
     return _save_figure(figure, path)
 
 
@@ -604,6 +635,7 @@ def windows_figure(frame_bgr, plans, path):
     """
     from matplotlib import colormaps
     from matplotlib.lines import Line2D
+    from matplotlib.patches import Rectangle
 
     check_output_path(path)
     width, height = windows_figure_size(frame_bgr.shape)
@@ -622,6 +654,15 @@ def windows_figure(frame_bgr, plans, path):
         _outline_boxes(axes, plan.boxes, [colour], linewidth=0.8, alpha=0.8)
         _outline_boxes(axes, [plan.roi], [colour], linewidth=2.0, linestyle="dashed")
     for index, plan in enumerate(plans):
+        # One window per scale filled, spread along the bottom rows, so each
+        # scale's window size can be seen in the mesh of outlines.
+        ny, nx = plan.grid
+        column = int(round((index + 0.5) / len(plans) * (nx - 1)))
+        example = plan.boxes[(ny - 1) * nx + column]
+        axes.add_patch(Rectangle((example[0] - 0.5, example[1] - 0.5), example[2] - example[0],
+                                 example[3] - example[1], facecolor=palette(index % 10),
+                                 alpha=0.45, edgecolor=palette(index % 10), linewidth=2.5))
+    for index, plan in enumerate(plans):
         side = int(plan.boxes[0, 2] - plan.boxes[0, 0])
         step = int(plan.boxes[1, 0] - plan.boxes[0, 0]) if plan.grid[1] > 1 else side
         handles.append(Line2D([], [], color=palette(index % 10), linewidth=3,
@@ -629,33 +670,68 @@ def windows_figure(frame_bgr, plans, path):
                                     f"{plan.grid[0]}x{plan.grid[1]} = {plan.n_windows} windows"))
     total = sum(plan.n_windows for plan in plans)
     axes.legend(handles=handles, loc="upper left", fontsize=10, framealpha=0.85,
-                title=f"{total} windows in {len(plans)} scales (dashed: searched region)")
+                title=f"{total} windows in {len(plans)} scales\n"
+                      "(dashed: searched region; filled: one window)")
     axes.set_xlim(-0.5, frame_bgr.shape[1] - 0.5)
     axes.set_ylim(frame_bgr.shape[0] - 0.5, -0.5)
     return _save_figure(figure, path)
 
 
 # -- viz detect -------------------------------------------------------------
-#: Pixel size of :func:`detect_figure`.
-DETECT_FIGURE_SIZE = (1600, 1000)
+#: Width in pixels of :func:`detect_figure`, and of the frame in each of its panels.
+DETECT_FIGURE_WIDTH, _DETECT_PANEL_WIDTH = 1600, 1420
+#: Pixels above each panel of :func:`detect_figure` (its title) and rows of frame kept
+#: above and below the searched band.
+_DETECT_TITLE_PX, _DETECT_PAD_ROWS = 34, 16
+
+
+def detect_view_rows(frame_shape, plans):
+    """``(y0, y1)``: the rows of a frame :func:`detect_figure` shows.
+
+    Only the band the scales search (plus a margin) can hold hits, heat or
+    boxes; leaving out the sky and the bonnet makes the cars larger.
+    """
+    height = frame_shape[0]
+    if not plans:
+        return 0, height
+    y0 = min(plan.roi[1] for plan in plans) - _DETECT_PAD_ROWS
+    y1 = max(plan.roi[3] for plan in plans) + _DETECT_PAD_ROWS
+    return max(0, y0), min(height, y1)
+
+
+def detect_figure_size(frame_shape, plans):
+    """``(width, height)`` in pixels of :func:`detect_figure`.
+
+    Parameters
+    ----------
+    frame_shape : tuple
+        Shape of the frame.
+    plans : sequence of ScalePlan
+        The detector's plans for the frame's size.
+    """
+    y0, y1 = detect_view_rows(frame_shape, plans)
+    panel_h = round(_DETECT_PANEL_WIDTH * (y1 - y0) / frame_shape[1])
+    return DETECT_FIGURE_WIDTH, 4 * (panel_h + _DETECT_TITLE_PX) + 8
 
 
 def detect_figure(frame_bgr, detector, path, ground_truth=None):
     """The detector's stages on one frame, in four panels.
 
-    Raw hit windows coloured by SVM margin; the heat map with its threshold;
-    the labelled components of the thresholded heat; the final boxes.
+    Top to bottom: the hit windows coloured by SVM margin; the heat map with
+    its threshold; the labelled components of the thresholded heat; the
+    final boxes.  Panels show the band of rows the scales search.
 
     Parameters
     ----------
     frame_bgr : ndarray of uint8, shape (H, W, 3)
     detector : Detector
     path : str or Path
-        Output image file, :data:`DETECT_FIGURE_SIZE`.
+        Output image file, :func:`detect_figure_size`.
     ground_truth : list of dict, optional
         Annotated objects of the frame (``{"box": [x1, y1, x2, y2],
         "difficult": bool}``, as :func:`fastdet.evaluate.load_annotations`
-        gives them), drawn dashed white in the hits and boxes panels.
+        gives them), drawn dashed white in the hits and boxes panels
+        (dotted when ``difficult``).
 
     Returns
     -------
@@ -683,53 +759,77 @@ def detect_figure(frame_bgr, detector, path, ground_truth=None):
     labels, n_components = label_components(heat > heat_config.threshold,
                                             heat_config.connectivity)
 
-    figure = _new_figure(*DETECT_FIGURE_SIZE)
-    grid = figure.subplots(2, 2, squeeze=False)
-    figure.subplots_adjust(left=0.01, right=0.95, bottom=0.01, top=0.95, wspace=0.12, hspace=0.1)
+    plans = detector.plans(size)
+    view_y0, view_y1 = detect_view_rows(frame.shape, plans)
+    figure_w, figure_h = detect_figure_size(frame.shape, plans)
+    panel_h = (figure_h - 8) // 4 - _DETECT_TITLE_PX
+    figure = _new_figure(figure_w, figure_h)
+
+    frame_panels = []
+
+    def panel_rect(row, left_px, width_px):
+        # Exact pixel rectangles keep the four frames the same size and aligned,
+        # whether or not a panel has a colour bar.
+        top = figure_h - row * (panel_h + _DETECT_TITLE_PX) - _DETECT_TITLE_PX
+        return (left_px / figure_w, (top - panel_h) / figure_h, width_px / figure_w,
+                panel_h / figure_h)
+
+    def panel(row, title, image_rgb):
+        axes = figure.add_axes(panel_rect(row, 10, _DETECT_PANEL_WIDTH))
+        # The panel already has the view's aspect; 'auto' stops imshow from
+        # shrinking the axes by a rounding pixel.
+        axes.imshow(image_rgb, aspect="auto")
+        axes.set_xticks([])
+        axes.set_yticks([])
+        axes.set_title(title, fontsize=12)
+        frame_panels.append(axes)
+        return axes
+
+    def colour_bar(row, mappable, label):
+        bar = figure.add_axes(panel_rect(row, _DETECT_PANEL_WIDTH + 30, 16))
+        figure.colorbar(mappable, cax=bar, label=label)
+
     dimmed = _rgb((frame * 0.45).astype(np.uint8))
     threshold = detector.config.search.decision_threshold
+    truth_note = "; ground truth dashed white (dotted: difficult)" if ground_truth else ""
 
-    axes = grid[0, 0]
-    _show_image(axes, dimmed, f"{len(hits.scores)} hit windows of {hits.windows_scored} scored "
-                              f"(margin > {threshold:g})")
+    axes = panel(0, f"{len(hits.scores)} hit windows of {hits.windows_scored} scored "
+                    f"(SVM margin > {threshold:g}){truth_note}", dimmed)
     if len(hits.scores):
         order = np.argsort(hits.scores)  # best drawn last, on top
         norm = Normalize(threshold, max(float(hits.scores.max()), threshold + 1e-3))
         _outline_boxes(axes, hits.boxes[order], colormaps["viridis"](norm(hits.scores[order])),
                        linewidth=1.2)
-        figure.colorbar(ScalarMappable(norm, "viridis"), ax=axes, fraction=0.03, pad=0.01,
-                        label="SVM margin")
+        colour_bar(0, ScalarMappable(norm, "viridis"), "SVM margin")
     _draw_ground_truth(axes, ground_truth)
 
-    axes = grid[0, 1]
-    _show_image(axes, dimmed, f"heat ({heat_config.weighting} weighting), "
-                              f"threshold {heat_config.threshold:g} (cyan)")
+    axes = panel(1, f"heat ({heat_config.weighting} weighting); cyan: threshold "
+                    f"{heat_config.threshold:g}", dimmed)
     if heat.max() > 0:
         shown = axes.imshow(np.ma.masked_equal(heat, 0), cmap="inferno", alpha=0.85,
-                            interpolation="nearest", vmin=0, vmax=float(heat.max()))
-        figure.colorbar(shown, ax=axes, fraction=0.03, pad=0.01, label="heat")
+                            interpolation="nearest", vmin=0, vmax=float(heat.max()),
+                            aspect="auto")
+        colour_bar(1, shown, "heat")
         if heat.max() > heat_config.threshold:
             axes.contour(heat, levels=[heat_config.threshold], colors="cyan", linewidths=0.8)
 
-    axes = grid[1, 0]
-    _show_image(axes, dimmed, f"{n_components} connected components of heat > "
-                              f"{heat_config.threshold:g} ({heat_config.connectivity}-connected)")
+    axes = panel(2, f"{n_components} connected components of heat > {heat_config.threshold:g} "
+                    f"({heat_config.connectivity}-connected)", dimmed)
     if n_components:
-        # Cycle a qualitative map so neighbouring labels get different colours.
-        shown = np.ma.masked_equal(labels, 0)
-        axes.imshow((shown - 1) % 20, cmap="tab20", vmin=0, vmax=19, alpha=0.8,
-                    interpolation="nearest")
+        # A qualitative map, cycled, so neighbouring labels get different colours.
+        axes.imshow((np.ma.masked_equal(labels, 0) - 1) % 20, cmap="tab20", vmin=0, vmax=19,
+                    alpha=0.8, interpolation="nearest", aspect="auto")
 
-    axes = grid[1, 1]
-    _show_image(axes, _rgb(frame), f"{len(detections)} detections after the box filters")
+    axes = panel(3, f"{len(detections)} detections after the box filters (green, heat peak "
+                    f"above each){truth_note}", _rgb(frame))
     _draw_ground_truth(axes, ground_truth)
     if len(detections):
         _outline_boxes(axes, detections.xyxy, ["lime"], linewidth=2.0)
         for (x1, y1, _, _), score in zip(detections.xyxy.tolist(), detections.score.tolist()):
-            axes.text(x1, y1 - 4, f"{score:.1f}", color="lime", fontsize=9, va="bottom")
-    for axes in grid.ravel():
+            axes.text(x1, y1 - 3, f"{score:.1f}", color="lime", fontsize=10, va="bottom")
+    for axes in frame_panels:
         axes.set_xlim(-0.5, width - 0.5)
-        axes.set_ylim(height - 0.5, -0.5)
+        axes.set_ylim(view_y1 - 0.5, view_y0 - 0.5)
     return _save_figure(figure, path)
 
 
@@ -792,22 +892,27 @@ def training_report_figure(model_report, test_scores, test_labels, path):
     true_neg = int(np.sum(~vehicle & ~predicted))
 
     figure = _new_figure(*TRAINING_REPORT_SIZE)
-    layout = figure.add_gridspec(1, 3, width_ratios=(1.6, 0.9, 1.2), left=0.05, right=0.99,
+    layout = figure.add_gridspec(1, 3, width_ratios=(1.5, 0.9, 1.3), left=0.05, right=0.99,
                                  bottom=0.12, top=0.9, wspace=0.25)
     axes = figure.add_subplot(layout[0])
     bins = np.linspace(scores.min(), scores.max(), 61) if np.ptp(scores) > 0 else 10
-    axes.hist(scores[vehicle], bins=bins, alpha=0.6, color="tab:orange",
-              label=f"vehicles ({int(vehicle.sum())})")
-    axes.hist(scores[~vehicle], bins=bins, alpha=0.6, color="tab:blue",
-              label=f"non-vehicles ({int((~vehicle).sum())})")
+    for members, colour, name in ((vehicle, "tab:orange", "vehicles"),
+                                  (~vehicle, "tab:blue", "non-vehicles")):
+        axes.hist(scores[members], bins=bins, histtype="stepfilled", alpha=0.45, color=colour,
+                  edgecolor=colour, linewidth=1.2, label=f"{name} ({int(members.sum())})")
     axes.axvline(0, color="black", linestyle="--", linewidth=1, label="decision boundary")
+    cv = model_report.get("cross_validation")
+    if isinstance(cv, dict) and isinstance(cv.get("threshold"), (int, float)) and cv["threshold"]:
+        axes.axvline(cv["threshold"], color="tab:purple", linestyle=":", linewidth=1.5,
+                     label=f"cross-validated threshold {cv['threshold']:+.3f}")
     # Log counts: the few misclassified crops near 0 are what matters, and
     # they would vanish next to the two tall modes on a linear axis.
     axes.set_yscale("log")
+    axes.set_ylim(top=axes.get_ylim()[1] * 8)  # head-room for the legend
     axes.set_xlabel("SVM margin")
     axes.set_ylabel("test crops")
     axes.set_title("decision scores on the test split", fontsize=11)
-    axes.legend(fontsize=9)
+    axes.legend(fontsize=9, loc="upper left", framealpha=0.9)
 
     axes = figure.add_subplot(layout[1])
     matrix = np.array([[true_pos, false_neg], [false_pos, true_neg]])
@@ -828,11 +933,12 @@ def training_report_figure(model_report, test_scores, test_labels, path):
     total = scores.size
     precision = true_pos / max(true_pos + false_pos, 1)
     recall = true_pos / max(true_pos + false_neg, 1)
-    lines = [f"test split: {total} crops",
-             f"accuracy   {(true_pos + true_neg) / total:.4f}",
-             f"precision  {precision:.4f}",
-             f"recall     {recall:.4f}",
-             f"false pos. {false_pos}   false neg. {false_neg}", ""]
+    lines = [f"{'these test scores:':19}{total} crops",
+             f"{'accuracy:':19}{(true_pos + true_neg) / total:.4f}",
+             f"{'precision:':19}{precision:.4f}",
+             f"{'recall:':19}{recall:.4f}",
+             f"{'false positives:':19}{false_pos}",
+             f"{'false negatives:':19}{false_neg}", "", "model report:"]
     lines += _report_lines(model_report)
     axes.text(0.0, 1.0, "\n".join(lines), va="top", ha="left", family="monospace", fontsize=10,
               transform=axes.transAxes)
@@ -847,10 +953,15 @@ def _report_lines(report):
         split = report.get(key)
         if isinstance(split, dict) and "accuracy" in split:
             detail = (f" ({split['test_crops']} test crops)" if "test_crops" in split else "")
-            lines.append(f"{title + ':':17}accuracy {float(split['accuracy']):.4f}{detail}")
+            lines.append(f"{title + ':':19}{float(split['accuracy']):.4f}{detail}")
+    cv = report.get("cross_validation")
+    if isinstance(cv, dict) and "C" in cv:
+        lines.append(f"{'cross-validated:':19}C {float(cv['C']):g}"
+                     + (f", threshold {float(cv['threshold']):+.3f}" if "threshold" in cv else ""))
     for key, value in report.items():
-        if key in ("random_split", "leak_free_split") or isinstance(value, (dict, list)):
+        if (key in ("random_split", "leak_free_split") or value is None
+                or isinstance(value, (dict, list))):
             continue
         text = f"{value:.4g}" if isinstance(value, float) else str(value)
-        lines.append(f"{key.replace('_', ' ') + ':':17}{text}"[:48])
+        lines.append(f"{key.replace('_', ' ') + ':':19}{text}"[:46])
     return lines

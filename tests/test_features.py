@@ -99,10 +99,16 @@ def whole_image_blocks(converted, grey, options):
     return hog_blocks(hog_input(converted, grey, options), options)
 
 
+def box_average(pixels, size):
+    """Mean of each (64 / size)-pixel square tile, in float64."""
+    f = pixels.shape[0] // size
+    return pixels.astype(np.float64).reshape(size, f, size, f, 3).mean(axis=(1, 3))
+
+
 def explicit_window_features(converted, blocks, options, iy, ix, step_cells):
     """Window (iy, ix)'s features built by hand from ``fastdet.features``
     functions: HOG blocks of the whole image (``whole_image_blocks``) sliced
-    for the window, the window's converted pixels resized with INTER_AREA,
+    for the window, the window's converted pixels box-averaged (exact means),
     and np.histogram of each channel of those pixels over 0..256."""
     layout = FeatureLayout(options)
     ppc = options.pixels_per_cell
@@ -118,7 +124,7 @@ def explicit_window_features(converted, blocks, options, iy, ix, step_cells):
         parts.append(window_blocks.ravel())
     if options.spatial_size:
         size = options.spatial_size
-        parts.append(cv2.resize(pixels, (size, size), interpolation=cv2.INTER_AREA).ravel())
+        parts.append(box_average(pixels, size).ravel())
     if options.hist_bins:
         for c in range(3):
             counts, _ = np.histogram(pixels[:, :, c], bins=options.hist_bins, range=(0, 256))
@@ -271,8 +277,7 @@ def test_crop_features_spatial_and_histogram_parts(crops):
     crop = crops[0]
     _, spatial, hist = FeatureLayout(options).split(crop_features(crop, options))
     converted = cv2.cvtColor(crop, cv2.COLOR_BGR2HSV)
-    np.testing.assert_array_equal(
-        spatial, cv2.resize(converted, (16, 16), interpolation=cv2.INTER_AREA))
+    np.testing.assert_allclose(spatial, box_average(converted, 16), rtol=1e-6, atol=1e-4)
     for c in range(3):
         np.testing.assert_array_equal(
             hist[c], np.histogram(converted[:, :, c], bins=16, range=(0, 256))[0])

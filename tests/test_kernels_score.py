@@ -1,5 +1,5 @@
 """Tests for the window-scoring kernels of ``fastdet.kernels.score`` and for
-``fastdet.kernels.colour.tile_weight_sums``, against explicit per-window
+``fastdet.kernels.colour.colour_maps``, against explicit per-window
 slicing + ``np.dot`` / ``np.sum`` in float64 (``naive.py``)."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fastdet.kernels.colour import tile_weight_sums
+from fastdet.kernels.colour import colour_maps
 from fastdet.kernels.score import (add_hog_scores, add_spatial_scores, add_tile_window_sums,
                                    window_count)
 from naive import (naive_tile_weight_sums, naive_tile_window_sums, naive_window_sums)
@@ -152,7 +152,7 @@ def test_scores_add_up():
     ((67, 45, 3), 16),
     ((64, 64, 3), 64),
     ((63, 64, 3), 64),          # no whole tile
-    ((37, 53, 1), 5),
+    ((37, 53, 3), 5),
     ((9, 130, 3), 1),
     ((5, 5, 3), 7),             # no whole tile
 ])
@@ -160,7 +160,7 @@ def test_tile_weight_sums_matches_naive(shape, tile):
     rng = np.random.default_rng(shape[0] + tile)
     image = rng.integers(0, 256, shape, dtype=np.uint8)
     lut = rng.normal(size=(shape[2], 256)).astype(np.float32)
-    actual = tile_weight_sums(image, lut, tile)
+    actual = colour_maps(image, lut, tile)[0]
     expected = naive_tile_weight_sums(image, lut, tile)
     assert actual.dtype == np.float32
     assert actual.shape == (shape[0] // tile, shape[1] // tile)
@@ -175,7 +175,7 @@ def test_tile_weight_sums_reads_each_channel_with_its_own_lut():
     lut = np.zeros((3, 256), np.float32)
     lut[0, 10], lut[1, 20], lut[2, 30] = 1.0, 100.0, 10000.0
     lut[0, 255], lut[1, 0], lut[2, 1] = 0.5, 0.25, 0.125
-    out = tile_weight_sums(image, lut, 2)
+    out = colour_maps(image, lut, 2)[0]
     expected = np.full((2, 2), 4 * 10101.0, np.float32)
     expected[0, 0] = 3 * 10101.0 + 0.875
     np.testing.assert_array_equal(out, expected)
@@ -217,7 +217,7 @@ def test_histogram_part_equals_per_window_histograms(hist_bins, step_px):
     tile = int(np.gcd(step_px, window))
     grid = grid_of(image.shape, window, step_px)
     out = np.zeros(grid, np.float32)
-    add_tile_window_sums(tile_weight_sums(image, lut, tile), window // tile, step_px // tile, out)
+    add_tile_window_sums(colour_maps(image, lut, tile)[0], window // tile, step_px // tile, out)
     expected = np.zeros(grid)
     for iy in range(grid[0]):
         for ix in range(grid[1]):
@@ -267,3 +267,26 @@ def test_window_larger_than_the_map_with_a_grid_raises():
                        np.zeros((1, 1), np.float32))
     with pytest.raises(ValueError):
         add_tile_window_sums(np.ones((3, 3), np.float32), 4, 1, np.zeros((1, 1), np.float32))
+
+
+@pytest.mark.parametrize("shape, factor", [
+    ((64, 64, 3), 2), ((67, 45, 3), 2), ((67, 45, 3), 4), ((64, 64, 3), 1), ((3, 3, 3), 4),
+    ((9, 130, 3), 3),
+])
+def test_colour_maps_box_mean_matches_numpy(shape, factor):
+    rng = np.random.default_rng(shape[1] + factor)
+    image = rng.integers(0, 256, shape, dtype=np.uint8)
+    tiles, box = colour_maps(image, None, 8, factor)
+    assert tiles.shape == (0, 0)
+    h, w = shape[0] // factor, shape[1] // factor
+    expected = image[:h * factor, :w * factor].astype(np.float64).reshape(
+        h, factor, w, factor, 3).mean(axis=(1, 3))
+    assert box.shape == (h, w, 3) and box.dtype == np.float32
+    np.testing.assert_allclose(box, expected, rtol=1e-6, atol=1e-4)
+
+
+def test_colour_maps_rejects_non_colour_images():
+    with pytest.raises(ValueError, match="uint8"):
+        colour_maps(np.zeros((8, 8), np.uint8), None, 8, 2)
+    with pytest.raises(ValueError, match="uint8"):
+        colour_maps(np.zeros((8, 8, 3), np.float32), None, 8, 2)
