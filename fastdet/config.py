@@ -130,18 +130,29 @@ class HeatConfig:
         whose heat reaches this fraction of the component's peak (0 keeps the
         whole component).  Square windows overhang wide cars; the overlap of
         many hits, where the heat peaks, follows the car more closely.
+    split : bool
+        Split a blob whose heat has two or more peaks (two cars side by
+        side) by raising its threshold until it falls apart, but only into
+        parts that are each at least ``split_min_size`` wide and tall.
+    split_min_size : float
+        Smallest part that counts as a car, in reference-frame pixels.
     """
 
     threshold: float = 1.0
     weighting: str = "count"
     connectivity: int = 8
     peak_fraction: float = 0.0
+    split: bool = True
+    split_min_size: float = 48.0
 
     def __post_init__(self):
         _number("heat.threshold", self.threshold)
         _number("heat.peak_fraction", self.peak_fraction)
         if not 0 <= self.peak_fraction <= 1:
             raise ConfigError(f"heat.peak_fraction must be in [0, 1], got {self.peak_fraction!r}")
+        if not isinstance(self.split, bool):
+            raise ConfigError(f"heat.split must be true or false, got {self.split!r}")
+        _number("heat.split_min_size", self.split_min_size)
         if self.weighting not in ("count", "area", "margin"):
             raise ConfigError(f"heat.weighting must be 'count', 'area' or 'margin', "
                               f"got {self.weighting!r}")

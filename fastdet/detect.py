@@ -27,7 +27,7 @@ from .kernels.blocks import normalize_blocks
 from .kernels.heat import accumulate_heat
 from .kernels.hog import cell_histograms
 from .kernels.label import (component_boxes, component_core_boxes, component_max,
-                            label_components)
+                            label_components, split_component)
 from .kernels.colour import colour_maps
 from .kernels.score import (add_hog_scores, add_hog_scores_from_cells, add_spatial_scores,
                             add_tile_window_sums, window_count)
@@ -404,27 +404,59 @@ class Detector:
         frame_size : tuple of int
             ``(width, height)`` of the frame, for the size-relative filters.
         """
-        boxes, peaks = self.heat_components(heat, origin)
+        boxes, peaks = self.heat_components(heat, origin, frame_size)
         return self.finish_boxes(boxes, peaks, frame_size)
 
-    def heat_components(self, heat, origin):
-        """Boxes (refined per ``heat.peak_fraction``) and peak heat of each blob."""
+    def heat_components(self, heat, origin, frame_size=None):
+        """Boxes and peak heat of each blob (refined and split per ``[heat]``)."""
         empty = (np.zeros((0, 4), np.int32), np.zeros(0, np.float32))
         if heat.size == 0:
             return empty
-        labels, count = label_components(heat > self.config.heat.threshold,
-                                         self.config.heat.connectivity)
+        cfg = self.config.heat
+        labels, count = label_components(heat > cfg.threshold, cfg.connectivity)
         if count == 0:
             return empty
         peaks = component_max(labels, count, heat)
-        fraction = self.config.heat.peak_fraction
-        if fraction > 0:
+        if cfg.peak_fraction > 0:
             boxes = component_core_boxes(labels, count, heat,
-                                         (peaks * np.float32(fraction)).astype(np.float32))
+                                         (peaks * np.float32(cfg.peak_fraction)).astype(np.float32))
         else:
             boxes = component_boxes(labels, count)
+        if cfg.split:
+            boxes, peaks = self._split_blobs(heat, labels, boxes, peaks, frame_size)
         boxes += np.array([origin[0], origin[1], origin[0], origin[1]], dtype=np.int32)
         return boxes, peaks
+
+    def _split_blobs(self, heat, labels, boxes, peaks, frame_size):
+        """Replace blobs with two car-sized peaks by one box per peak."""
+        cfg = self.config.heat
+        scale = 1.0
+        if frame_size is not None:
+            ref_w, ref_h = self.config.search.reference_size
+            scale = math.sqrt(frame_size[0] / ref_w * frame_size[1] / ref_h)
+        min_size = int(round(cfg.split_min_size * scale))
+        whole = component_boxes(labels, len(peaks))
+        out_boxes, out_peaks = [], []
+        for k in range(len(peaks)):
+            x1, y1, x2, y2 = whole[k]
+            if max(x2 - x1, y2 - y1) < 2 * min_size:
+                out_boxes.append(boxes[k:k + 1])
+                out_peaks.append(peaks[k:k + 1])
+                continue
+            region = heat[y1:y2, x1:x2]
+            mask = np.ascontiguousarray(labels[y1:y2, x1:x2] == k + 1)
+            levels = (cfg.threshold + (peaks[k] - cfg.threshold)
+                      * np.linspace(0.1, 0.9, 9)).astype(np.float32)
+            parts = split_component(np.ascontiguousarray(region), mask, levels, min_size,
+                                    min_size, cfg.connectivity)
+            if len(parts) < 2:
+                out_boxes.append(boxes[k:k + 1])
+                out_peaks.append(peaks[k:k + 1])
+                continue
+            out_peaks.append(np.array([region[py1:py2, px1:px2][mask[py1:py2, px1:px2]].max()
+                                       for px1, py1, px2, py2 in parts], dtype=np.float32))
+            out_boxes.append(parts + np.array([x1, y1, x1, y1], dtype=np.int32))
+        return np.concatenate(out_boxes), np.concatenate(out_peaks)
 
     def finish_boxes(self, boxes, peaks, frame_size):
         """Shape-correct and filter blob boxes into :class:`Detections`."""

@@ -130,7 +130,7 @@ def _evaluate(model, base, frames, truth, threshold, heat_threshold, weighting, 
     for key, (hits, size) in frames.items():
         kept = _subset(hits, hits.scores > threshold)
         heat, origin = detector.heat_region(kept, size)
-        blobs[key] = (detector.heat_components(heat, origin), size)
+        blobs[key] = (detector.heat_components(heat, origin, size), size)
     out = []
     for width_scale, height_scale, center_dy in shapes:
         shaped = Detector(model, dataclasses.replace(config, boxes=dataclasses.replace(

@@ -116,3 +116,37 @@ def test_one_scale_config_scores_only_that_scale(random_model):
     detector = Detector(random_model, config, threads=1)
     hits = detector.hits(np.random.default_rng(0).integers(0, 255, (128, 256, 3), np.uint8))
     assert hits.windows_scored == 3 * 7
+
+
+def _boxes_from_hits(model, windows, split, min_size=48):
+    config = DetectorConfig(heat=HeatConfig(threshold=0.5, split=split, split_min_size=min_size),
+                            boxes=BoxConfig(min_size=10, horizon_y=0, max_aspect=5))
+    detector = Detector(model, config, threads=1)
+    boxes = np.array(windows, np.int32)
+    hits = Hits(boxes, np.ones(len(boxes), np.float32), np.zeros(len(boxes), np.int64), len(boxes))
+    heat, origin = detector.heat_region(hits, (1280, 720))
+    return detector.boxes_from_heat(heat, origin, (1280, 720)).xyxy.tolist()
+
+
+def test_two_cars_side_by_side_are_split(random_model):
+    # Two clusters of hits whose heat islands touch with a valley between their peaks.
+    left = [[400 + dx, 400 + dy, 470 + dx, 470 + dy] for dx in (0, 5, 10) for dy in (0, 5)]
+    right = [[490 + dx, 400 + dy, 560 + dx, 470 + dy] for dx in (-10, -5, 0) for dy in (0, 5)]
+    assert _boxes_from_hits(random_model, left + right, split=False) == [[400, 400, 560, 475]]
+    assert _boxes_from_hits(random_model, left + right, split=True) == [
+        [400, 400, 480, 475], [480, 400, 560, 475]]
+
+
+def test_one_wide_car_stays_one_box(random_model):
+    # Evenly overlapping hits along a wide car: one plateau, no valley.
+    wide = [[400 + dx, 400, 480 + dx, 480] for dx in range(0, 100, 8)]
+    assert _boxes_from_hits(random_model, wide, split=True) == [[400, 400, 576, 480]]
+
+
+def test_small_parts_are_not_split_off(random_model):
+    # A valley, but one side is narrower than split_min_size: not a second car.
+    big = [[400 + dx, 400 + dy, 470 + dx, 470 + dy] for dx in (0, 5, 10) for dy in (0, 5)]
+    small = [[478 + dx, 420 + dy, 518 + dx, 460 + dy] for dx in (-4, 0, 4) for dy in (0, 5)]
+    assert _boxes_from_hits(random_model, big + small, split=True) == [[400, 400, 522, 475]]
+    # The same blob splits when parts of 20 pixels count as cars.
+    assert len(_boxes_from_hits(random_model, big + small, split=True, min_size=20)) == 2

@@ -287,3 +287,18 @@ def test_component_max_nan_missing_and_out_of_range():
     expected = np.array([np.nan, -2.0, -np.inf], dtype=np.float32)
     assert_identical(maxima, expected)
     assert_identical(maxima, naive_component_max(labels, 3, values))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_component_core_boxes_match_numpy(seed):
+    from fastdet.kernels.label import component_core_boxes
+
+    rng = np.random.default_rng(seed)
+    values = rng.random((41, 57)).astype(np.float32)
+    labels, count = label_components(values > 0.4, 8)
+    thresholds = rng.uniform(0.4, 1.0, count).astype(np.float32)
+    boxes = component_core_boxes(labels, count, values, thresholds)
+    for k in range(count):
+        ys, xs = np.nonzero((labels == k + 1) & (values >= thresholds[k]))
+        expected = [0, 0, 0, 0] if len(xs) == 0 else [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]
+        assert boxes[k].tolist() == expected

@@ -46,6 +46,7 @@ __all__ = [
     "component_max",
     "label_components",
     "label_components_kernel",
+    "split_component",
 ]
 
 
@@ -351,3 +352,95 @@ def component_core_boxes(labels, count, values, thresholds):
         if boxes[row, 2] == 0:
             boxes[row, :] = 0
     return boxes
+
+
+@numba.njit(cache=True)
+def split_component(heat, mask, levels, min_width, min_height, connectivity):
+    """Split one heat blob into car-sized parts at the lowest level that separates it.
+
+    Two cars side by side make one blob with a valley between two peaks.
+    The threshold is raised through ``levels`` until the blob's pixels above
+    it fall into two or more parts whose boxes are each at least
+    ``min_width x min_height``; every pixel of the blob is then given to the
+    part whose box is nearest, so the parts share the blob's full extent.
+
+    Parameters
+    ----------
+    heat : ndarray of float32, shape (h, w)
+        Heat around the blob.
+    mask : ndarray of bool or uint8, shape (h, w)
+        The blob's pixels.
+    levels : ndarray of float32
+        Increasing thresholds to try.
+    min_width, min_height : int
+        Smallest part that counts as a car.
+    connectivity : int
+        4 or 8.
+
+    Returns
+    -------
+    ndarray of int32, shape (n, 4)
+        Boxes ``[x1, y1, x2, y2]`` of the parts, or one row (the blob's box)
+        when no level splits it into car-sized parts.
+    """
+    height, width = heat.shape
+    above = np.zeros((height, width), dtype=np.uint8)
+    for level_index in range(levels.size):
+        level = levels[level_index]
+        for y in range(height):
+            for x in range(width):
+                above[y, x] = 1 if (mask[y, x] and heat[y, x] > level) else 0
+        labels, count = label_components_kernel(above, connectivity == 8)
+        if count < 2:
+            if count == 0:
+                break
+            continue
+        parts = component_boxes(labels, count)
+        big = 0
+        for k in range(count):
+            if (parts[k, 2] - parts[k, 0] >= min_width
+                    and parts[k, 3] - parts[k, 1] >= min_height):
+                big += 1
+        if big < 2:
+            continue
+        seeds = np.empty((big, 4), dtype=np.int32)
+        n = 0
+        for k in range(count):
+            if (parts[k, 2] - parts[k, 0] >= min_width
+                    and parts[k, 3] - parts[k, 1] >= min_height):
+                seeds[n] = parts[k]
+                n += 1
+        out = np.empty((big, 4), dtype=np.int32)
+        out[:, 0] = width
+        out[:, 1] = height
+        out[:, 2] = 0
+        out[:, 3] = 0
+        for y in range(height):
+            for x in range(width):
+                if not mask[y, x]:
+                    continue
+                best = 0
+                best_distance = np.inf
+                for k in range(big):
+                    dx = max(seeds[k, 0] - x, 0, x - (seeds[k, 2] - 1))
+                    dy = max(seeds[k, 1] - y, 0, y - (seeds[k, 3] - 1))
+                    distance = dx * dx + dy * dy
+                    if distance < best_distance:
+                        best_distance = distance
+                        best = k
+                out[best, 0] = min(out[best, 0], x)
+                out[best, 1] = min(out[best, 1], y)
+                out[best, 2] = max(out[best, 2], x + 1)
+                out[best, 3] = max(out[best, 3], y + 1)
+        return out
+    whole = np.zeros((1, 4), dtype=np.int32)
+    whole[0, 0] = width
+    whole[0, 1] = height
+    for y in range(height):
+        for x in range(width):
+            if mask[y, x]:
+                whole[0, 0] = min(whole[0, 0], x)
+                whole[0, 1] = min(whole[0, 1], y)
+                whole[0, 2] = max(whole[0, 2], x + 1)
+                whole[0, 3] = max(whole[0, 3], y + 1)
+    return whole
