@@ -12,7 +12,9 @@ per search scale:
    colour-histogram (``np.histogram``) features, stack them, then call
    ``scaler.transform`` and the scikit-learn SVM on that single window;
 4. add every hit window to a heat map, threshold it, label it with
-   ``scipy.ndimage.label`` and take each component's bounding box.
+   ``scipy.ndimage.label`` and take each component's bounding box.  fastdet's
+   own refinements (``heat.peak_fraction``, ``heat.split``, the ``[boxes]``
+   shape correction) are not part of the published pipeline and are ignored.
 
 :class:`ReferenceDetector` does exactly that, but from a fastdet
 :class:`~fastdet.model.Model` and :class:`~fastdet.config.DetectorConfig`:

@@ -20,6 +20,10 @@ A TOML file only lists what it changes::
 Unknown sections or keys are rejected with their name.  Coordinates are in
 pixels of a ``search.reference_size`` frame (1280x720) and scaled
 proportionally for other frame sizes.
+
+The default thresholds and box-shape correction are the ones ``fastdet tune``
+chose for the bundled model on the annotated frames of the test video
+(``tools/build_default_model.py``); the test images play no part in them.
 """
 
 from __future__ import annotations
@@ -98,7 +102,7 @@ class SearchConfig:
 
     scales: tuple = DEFAULT_SCALES
     reference_size: tuple = (1280, 720)
-    decision_threshold: float = 0.5
+    decision_threshold: float = -0.25
 
     def __post_init__(self):
         object.__setattr__(self, "scales", tuple(self.scales))
@@ -138,10 +142,10 @@ class HeatConfig:
         Smallest part that counts as a car, in reference-frame pixels.
     """
 
-    threshold: float = 1.0
-    weighting: str = "count"
+    threshold: float = 3.0
+    weighting: str = "margin"
     connectivity: int = 8
-    peak_fraction: float = 0.0
+    peak_fraction: float = 0.3
     split: bool = True
     split_min_size: float = 48.0
 
@@ -184,9 +188,9 @@ class BoxConfig:
     min_aspect: float = 0.5
     max_aspect: float = 3.0
     horizon_y: float = 380.0
-    width_scale: float = 1.0
-    height_scale: float = 1.0
-    center_dy: float = 0.0
+    width_scale: float = 1.3
+    height_scale: float = 0.75
+    center_dy: float = 0.05
 
     def __post_init__(self):
         for name in ("min_size", "min_aspect", "max_aspect", "horizon_y", "width_scale",

@@ -122,8 +122,21 @@ def plan_scales(config, options, frame_size):
         nx = window_count(scaled_w // ppc, cells_per_window, step_cells)
         if ny == 0 or nx == 0:
             continue
-        fx, fy = scaled_w / (x1 - x0), scaled_h / (y1 - y0)
+        # Trim the region to what the window grid covers, plus one scaled pixel
+        # so the last row and column of cells keep their outward gradient:
+        # pixels no window reads are neither resized nor histogrammed.
         step_px = step_cells * ppc
+        used_w = (nx - 1) * step_px + WINDOW + 1
+        used_h = (ny - 1) * step_px + WINDOW + 1
+        trimmed_x1 = x0 + math.ceil(used_w / factor)
+        if used_w < scaled_w and trimmed_x1 < x1:
+            x1 = trimmed_x1
+            scaled_w = min(used_w, int(round((x1 - x0) * factor)))
+        trimmed_y1 = y0 + math.ceil(used_h / factor)
+        if used_h < scaled_h and trimmed_y1 < y1:
+            y1 = trimmed_y1
+            scaled_h = min(used_h, int(round((y1 - y0) * factor)))
+        fx, fy = scaled_w / (x1 - x0), scaled_h / (y1 - y0)
         px = np.arange(nx) * step_px
         py = np.arange(ny) * step_px
         gx1 = np.round(x0 + px / fx)

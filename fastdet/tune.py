@@ -53,6 +53,7 @@ class TuningResult:
     recall: float
     ap: float
     mean_iou: float
+    stability: int = 0
 
     @property
     def f1(self):
@@ -60,8 +61,8 @@ class TuningResult:
         return 0.0 if total == 0 else 2 * self.precision * self.recall / total
 
     def key(self):
-        """Ranking: F1 first, then box quality, then AP."""
-        return (round(self.f1, 4), round(self.mean_iou, 4), round(self.ap, 4))
+        """Ranking: F1 first, then stability, box quality and AP."""
+        return (round(self.f1, 4), self.stability, round(self.mean_iou, 4), round(self.ap, 4))
 
 
 def _subset(hits, keep):
@@ -105,16 +106,42 @@ def tune(model, sources, annotations, base_config=None, grid=None, log=None):
         shape = (base.boxes.width_scale, base.boxes.height_scale, base.boxes.center_dy)
         results.append(_evaluate(model, base, frames, truth, threshold, heat_threshold, weighting,
                                  fraction, [shape])[0])
+    _rate_stability(results, grid)
     results.sort(key=TuningResult.key, reverse=True)
     shapes = list(itertools.product(SHAPE_GRID["width_scale"], SHAPE_GRID["height_scale"],
                                     SHAPE_GRID["center_dy"]))
     for best in results[:SHAPE_CANDIDATES]:
-        results.extend(_evaluate(model, base, frames, truth, best.decision_threshold,
-                                 best.heat_threshold, best.weighting, best.peak_fraction, shapes))
+        shaped = _evaluate(model, base, frames, truth, best.decision_threshold,
+                           best.heat_threshold, best.weighting, best.peak_fraction, shapes)
+        for result in shaped:
+            result.stability = best.stability
+        results.extend(shaped)
     results.sort(key=TuningResult.key, reverse=True)
     if log:
         log(f"{len(results)} combinations on {len(frames)} annotated frames")
     return results
+
+
+def _rate_stability(results, grid):
+    """Count, for each result, the neighbouring thresholds that score as well.
+
+    A few annotated frames cannot tell apart many settings that are all
+    perfect on them; the one whose decision- and heat-threshold neighbours
+    are perfect too sits in the middle of the good region, furthest from
+    the settings that fail, and is the safest choice on unseen frames.
+    """
+    decision = list(grid["decision_threshold"])
+    heat = list(grid["heat_threshold"])
+    f1 = {(r.decision_threshold, r.heat_threshold, r.weighting, r.peak_fraction): round(r.f1, 4)
+          for r in results}
+    for r in results:
+        i, j = decision.index(r.decision_threshold), heat.index(r.heat_threshold)
+        own = round(r.f1, 4)
+        r.stability = 0
+        for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            if 0 <= i + di < len(decision) and 0 <= j + dj < len(heat):
+                neighbour = (decision[i + di], heat[j + dj], r.weighting, r.peak_fraction)
+                r.stability += f1.get(neighbour, -1) >= own
 
 
 def _evaluate(model, base, frames, truth, threshold, heat_threshold, weighting, fraction,
@@ -159,11 +186,11 @@ def as_toml(result):
 def format_results(results, top=10):
     """Markdown table of the best combinations."""
     lines = ["| decision thr | heat thr | weighting | peak fraction | width x | height x | "
-             "centre dy | precision | recall | F1 | AP50 | mean IoU |",
-             "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "centre dy | precision | recall | F1 | stable neighbours | AP50 | mean IoU |",
+             "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in results[:top]:
         lines.append(f"| {r.decision_threshold:g} | {r.heat_threshold:g} | {r.weighting} | "
                      f"{r.peak_fraction:g} | {r.width_scale:g} | {r.height_scale:g} | "
                      f"{r.center_dy:g} | {r.precision:.3f} | {r.recall:.3f} | {r.f1:.3f} | "
-                     f"{r.ap:.3f} | {r.mean_iou:.3f} |")
+                     f"{r.stability} | {r.ap:.3f} | {r.mean_iou:.3f} |")
     return "\n".join(lines)

@@ -260,7 +260,7 @@ def test_crop_features_rejects_non_crops(crop):
 
 def test_crop_features_hog_part_is_skimage_hog_per_channel(crops):
     # Pins the HOG feature order: blocks row by row, each (channel, cell_y, cell_x, bin).
-    options = FeatureOptions()
+    options = FeatureOptions(color_space="YCrCb")
     for crop in crops:
         hog, _, _ = FeatureLayout(options).split(crop_features(crop, options))
         converted = cv2.cvtColor(crop, cv2.COLOR_BGR2YCrCb)

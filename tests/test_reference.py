@@ -171,14 +171,15 @@ def test_detections_match_fastdet(image):
     frame = load_frame(image)
     model = random_model()
     fast_grids = fastdet_window_scores(Detector(model), frame)
+    # The reference merges hits the published way: no blob splitting.
     config = DetectorConfig(search=SearchConfig(
-        decision_threshold=threshold_in_a_gap(fast_grids, 0.95)))
+        decision_threshold=threshold_in_a_gap(fast_grids, 0.95)), heat=HeatConfig(split=False))
     compare_detections(frame, model, config)
 
 
 @pytest.mark.parametrize("heat", [
-    HeatConfig(threshold=1.5, weighting="area", connectivity=4),
-    HeatConfig(threshold=2.0, weighting="margin", connectivity=8),
+    HeatConfig(threshold=1.5, weighting="area", connectivity=4, split=False),
+    HeatConfig(threshold=2.0, weighting="margin", connectivity=8, split=False),
 ], ids=["area-4", "margin-8"])
 def test_detections_match_fastdet_for_heat_variants(heat):
     frame = load_frame("test4.jpg")
