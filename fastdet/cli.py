@@ -160,33 +160,6 @@ def cmd_tune(args):
     return 0
 
 
-# -- bench ------------------------------------------------------------------
-def cmd_bench(args):
-    from .bench import format_stages, format_table, run_benchmark
-    from .config import load_config
-    from .shared_data import data_dir
-
-    video = args.video or data_dir() / "test_video.mp4"
-    size = None
-    if args.size:
-        try:
-            width, height = (int(v) for v in args.size.lower().split("x"))
-        except ValueError:
-            raise InputError(f"--size must look like 1280x720, got {args.size!r}") from None
-        size = (width, height)
-    threads = args.threads or [1]
-    results, n_frames = run_benchmark(
-        video, frames=args.frames, threads=threads, size=size, repeat=args.repeat,
-        reference_frames=args.reference_frames, model=args.model, config=load_config(args.config),
-        log=lambda line: print(line, file=sys.stderr))
-    print(f"{n_frames} frames of {video}" + (f" resized to {args.size}" if size else ""))
-    print(format_table(results))
-    for result in results:
-        if result.stages:
-            print(format_stages(result))
-    return 0
-
-
 def _train_compare(args):
     from .features import FeatureOptions
     from .study import compare, format_markdown, plot
@@ -276,21 +249,13 @@ def build_parser():
     tune.add_argument("--config", metavar="C", help="TOML config with the scales and box filters")
     tune.set_defaults(handler=cmd_tune)
 
+    from .commands_run import add_run_parser
     from .commands_viz import add_viz_parser
+    add_run_parser(sub)
     add_viz_parser(sub)
 
-    bench = sub.add_parser("bench", help="per-frame latency of fastdet and its peers")
-    bench.add_argument("--video", help="video to time (default: the shared test video)")
-    bench.add_argument("--frames", type=int, help="use the first N frames (default: all)")
-    bench.add_argument("--threads", type=int, nargs="+", metavar="T",
-                       help="thread counts to time fastdet with (default: 1)")
-    bench.add_argument("--size", metavar="WxH", help="resize frames first, e.g. 1920x1080")
-    bench.add_argument("--repeat", type=int, default=3, help="timed passes per frame")
-    bench.add_argument("--reference-frames", type=int, default=5,
-                       help="frames to time the slow reference on (0 skips it)")
-    bench.add_argument("--model", metavar="M", help="model file (default: bundled)")
-    bench.add_argument("--config", metavar="C", help="TOML config")
-    bench.set_defaults(handler=cmd_bench)
+    from .commands_bench import add_bench_parser
+    add_bench_parser(sub)
     return parser
 
 
