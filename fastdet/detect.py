@@ -462,6 +462,8 @@ class Detector:
                       * np.linspace(0.1, 0.9, 9)).astype(np.float32)
             parts = split_component(np.ascontiguousarray(region), mask, levels, min_size,
                                     min_size, cfg.connectivity)
+            # A seed that won no pixel yields an empty box; it is no car.
+            parts = parts[(parts[:, 2] > parts[:, 0]) & (parts[:, 3] > parts[:, 1])]
             if len(parts) < 2:
                 out_boxes.append(boxes[k:k + 1])
                 out_peaks.append(peaks[k:k + 1])

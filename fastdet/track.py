@@ -5,7 +5,7 @@ Each temporal component is a small class, switched and tuned by the
 ``[track]`` section of the TOML configuration (:class:`TrackConfig`)::
 
     [track]
-    every = 5                        # full detection on every 5th frame at least
+    every = 5                        # a full detection at least every 5th frame
     heat_smoothing = "exponential"   # or "fir" (mean of the last heat_frames maps) or "none"
     heat_alpha = 0.25                # new = (1 - alpha) * old + alpha * current
     box_frames = 4                   # box corners averaged over the last 4 measurements
@@ -18,18 +18,18 @@ One frame goes through these steps:
    (:class:`PatchModel`); the box moves with the best match, or the vehicle
    is *lost* when no placement overlaps more than ``min_patch_overlap``.
 2. A full detection runs when ``every`` frames have passed since the last
-   one, and with ``tracking`` also when no vehicle is tracked, one was lost,
-   or the frame differs enough from the last fully searched one
-   (:class:`SceneChangeTrigger`).
+   one (every frame by default without tracking), and with ``tracking`` also
+   when no vehicle is tracked, one was lost, or the frame differs enough
+   from the last fully searched one (:class:`SceneChangeTrigger`).
 3. A full detection takes the detector's hits; with ``tracking``, hits
    entirely inside a tracked box are dropped (the vehicle is already known
    there), so only new vehicles are searched for.  Their heat is smoothed
    over frames (:class:`ExponentialHeat`, :class:`FirHeat`) and turned into
    boxes by the detector.
 4. Boxes are associated with tracks (:class:`TrackTable`), so a vehicle
-   keeps its id: without tracking by IoU; with tracking a box overlapping a
-   tracked box is merged into it and a box matching a lost vehicle revives
-   its id.
+   keeps its id: without tracking by IoU; with tracking a new box lying
+   mostly inside a tracked box (``merge_overlap``) is merged into it, and a
+   box matching a lost vehicle revives its id.
 5. Each track's box is the mean of its last ``box_frames`` measured boxes
    (:class:`BoxHistory`), so boxes do not jitter.
 """
@@ -47,7 +47,7 @@ import numpy as np
 from .config import read_toml
 from .detect import as_bgr_frame
 from .detections import Detections
-from .errors import ConfigError
+from .errors import ConfigError, InputError
 from .kernels.label import label_components
 from .kernels.patch import (
     grey_thumbnail,
@@ -66,13 +66,17 @@ class TrackConfig:
 
     Parameters
     ----------
-    every : int
+    every : int, optional
         A full detection runs at least every ``every`` frames; the frames
         between reuse the last boxes, or the tracker's with ``tracking``.
-    heat_smoothing : {'none', 'exponential', 'fir'}
-        How heat maps are smoothed across full detections: not at all; an
-        exponential filter ``new = (1 - heat_alpha) * old + heat_alpha *
-        current``; or the mean of the last ``heat_frames`` maps.
+        Default: every frame without ``tracking``; with it, only when a
+        trigger fires.
+    heat_smoothing : {'exponential', 'fir', 'none'}
+        How heat maps are smoothed across full detections: an exponential
+        filter ``new = (1 - heat_alpha) * old + heat_alpha * current`` (the
+        default: a false hit in one frame rarely reaches the heat threshold);
+        the mean of the last ``heat_frames`` maps; or not at all, which
+        reports exactly what the detector finds in each frame.
     heat_alpha : float
         Weight of the current heat map in the exponential filter, in (0, 1].
     heat_frames : int
@@ -93,6 +97,10 @@ class TrackConfig:
         HSV saturation (0-255) above which a pixel belongs to a patch mask.
     min_patch_overlap : float
         Least IoU of saturation masks for a patch to be found again.
+    merge_overlap : float
+        With ``tracking``, a new box with at least this fraction of its
+        area inside a tracked box is merged into that vehicle; a box that
+        only touches it is a new vehicle driving close by.
     min_patch_pixels : int
         A vehicle whose largest saturated region is smaller than this is
         not patch-tracked (it is re-detected every frame instead).
@@ -108,8 +116,8 @@ class TrackConfig:
         Downsampling factor of the frames the scene-change trigger compares.
     """
 
-    every: int = 1
-    heat_smoothing: str = "none"
+    every: int | None = None
+    heat_smoothing: str = "exponential"
     heat_alpha: float = 0.25
     heat_frames: int = 5
     box_frames: int = 1
@@ -118,13 +126,15 @@ class TrackConfig:
     tracking: bool = False
     saturation_threshold: int = 100
     min_patch_overlap: float = 0.5
+    merge_overlap: float = 0.25
     min_patch_pixels: int = 64
     search_radius: float = 16.0
     scene_change_threshold: float = 400.0
     thumbnail_factor: int = 8
 
     def __post_init__(self):
-        _integer("every", self.every, 1)
+        if self.every is not None:
+            _integer("every", self.every, 1)
         if self.heat_smoothing not in HEAT_SMOOTHING:
             raise ConfigError(f"track.heat_smoothing must be one of {', '.join(HEAT_SMOOTHING)}, "
                               f"got {self.heat_smoothing!r}")
@@ -137,10 +147,11 @@ class TrackConfig:
             raise ConfigError(f"track.tracking must be true or false, got {self.tracking!r}")
         _integer("saturation_threshold", self.saturation_threshold, 0, 254)
         _fraction("min_patch_overlap", self.min_patch_overlap, allow_zero=True)
+        _fraction("merge_overlap", self.merge_overlap, allow_zero=False)
         _integer("min_patch_pixels", self.min_patch_pixels, 1)
         _number("search_radius", self.search_radius, 0)
         _number("scene_change_threshold", self.scene_change_threshold, 0)
-        _integer("thumbnail_factor", self.thumbnail_factor, 1)
+        _integer("thumbnail_factor", self.thumbnail_factor, 1, 256)
 
     @classmethod
     def from_dict(cls, data):
@@ -158,6 +169,13 @@ class TrackConfig:
         if unknown:
             raise ConfigError(f"unknown key(s) in [track]: {', '.join(unknown)}")
         return cls(**data)
+
+    @property
+    def search_period(self):
+        """Frames between forced full detections (``None``: triggers only)."""
+        if self.every is not None:
+            return self.every
+        return None if self.tracking else 1
 
     def replace(self, **changes):
         """A copy with some settings changed (validated like the original)."""
@@ -266,12 +284,40 @@ def greedy_matches(scores, minimum):
 
 
 # -- heat smoothing -------------------------------------------------------------
-class NoHeatSmoothing:
-    """The current heat map, unchanged (``heat_smoothing = "none"``)."""
+def _placed(heat, offset, shape):
+    # The region slice of a map of `shape` that a region heat map covers.
+    x, y = offset
+    return slice(y, y + heat.shape[0]), slice(x, x + heat.shape[1])
 
-    def update(self, heat):
-        """Return the heat map to threshold for the current frame."""
-        return heat
+
+class NoHeatSmoothing:
+    """The current heat map, unchanged (``heat_smoothing = "none"``).
+
+    Smoothers take the current heat over a region of the map (the detector
+    computes it only around its hits) and return the whole smoothed map.
+    """
+
+    def update(self, heat, offset=(0, 0), shape=None):
+        """The map to threshold for the current frame.
+
+        Parameters
+        ----------
+        heat : ndarray of float32, shape (h, w)
+            Current heat over a region of the map.
+        offset : tuple of int
+            ``(x, y)`` of that region in the map.
+        shape : tuple of int, optional
+            ``(height, width)`` of the map; ``heat.shape`` by default.  The
+            region must lie inside it.
+
+        Returns
+        -------
+        ndarray of float32, shape ``shape``
+            Owned by the smoother: read it before the next update.
+        """
+        full = np.zeros(shape or heat.shape, dtype=np.float32)
+        full[_placed(heat, offset, full.shape)] = heat
+        return full
 
     def reset(self):
         """Forget past frames."""
@@ -282,6 +328,8 @@ class ExponentialHeat(NoHeatSmoothing):
 
     The first map after a reset is taken as is, so a vehicle present from the
     first frame is found in it rather than after the filter has warmed up.
+    Only the decay touches the whole map; the current heat is added over its
+    region alone.
 
     Parameters
     ----------
@@ -293,12 +341,13 @@ class ExponentialHeat(NoHeatSmoothing):
         self.alpha = float(alpha)
         self._state = None
 
-    def update(self, heat):
-        if self._state is None or self._state.shape != heat.shape:
-            self._state = np.array(heat, dtype=np.float32, copy=True)
+    def update(self, heat, offset=(0, 0), shape=None):
+        shape = tuple(shape or heat.shape)
+        if self._state is None or self._state.shape != shape:
+            self._state = super().update(heat, offset, shape)
         else:
             self._state *= np.float32(1.0 - self.alpha)
-            self._state += np.float32(self.alpha) * heat
+            self._state[_placed(heat, offset, shape)] += np.float32(self.alpha) * heat
         return self._state
 
     def reset(self):
@@ -321,14 +370,16 @@ class FirHeat(NoHeatSmoothing):
         self.frames = int(frames)
         self.reset()
 
-    def update(self, heat):
-        if self._ring is None or self._ring.shape[1:] != heat.shape:
-            self._ring = np.zeros((self.frames,) + heat.shape, dtype=np.float32)
-            self._sum = np.zeros(heat.shape, dtype=np.float32)
+    def update(self, heat, offset=(0, 0), shape=None):
+        shape = tuple(shape or heat.shape)
+        if self._ring is None or self._ring.shape[1:] != shape:
+            self._ring = np.zeros((self.frames,) + shape, dtype=np.float32)
+            self._sum = np.zeros(shape, dtype=np.float32)
             self._count = self._next = 0
         slot = self._ring[self._next]
         self._sum -= slot
-        slot[...] = heat
+        slot[...] = 0.0
+        slot[_placed(heat, offset, shape)] = heat
         self._sum += slot
         self._next = (self._next + 1) % self.frames
         self._count = min(self._count + 1, self.frames)
@@ -500,20 +551,24 @@ class SceneChangeTrigger:
         #: Mean squared difference measured by the last :meth:`changed` call.
         self.last_difference = 0.0
 
-    def _thumbnail(self, frame):
-        if self.rows is not None:
-            frame = frame[self.rows[0]:self.rows[1]]
-        return grey_thumbnail(np.ascontiguousarray(frame), self.factor)
+    def thumbnail(self, frame):
+        """The grey thumbnail frames are compared by (float32)."""
+        band = frame if self.rows is None else frame[self.rows[0]:self.rows[1]]
+        return grey_thumbnail(np.ascontiguousarray(band), self.factor)
 
-    def set_reference(self, frame):
-        """Remember ``frame`` as the last fully searched one."""
-        self._reference = self._thumbnail(frame)
+    def set_reference(self, frame, thumbnail=None):
+        """Remember ``frame`` as the last fully searched one.
 
-    def changed(self, frame):
+        ``thumbnail``, if given, is ``self.thumbnail(frame)`` already computed.
+        """
+        self._reference = self.thumbnail(frame) if thumbnail is None else thumbnail
+
+    def changed(self, frame, thumbnail=None):
         """True when ``frame`` differs from the reference by more than the threshold."""
         if self._reference is None:
             return True
-        thumbnail = self._thumbnail(frame)
+        if thumbnail is None:
+            thumbnail = self.thumbnail(frame)
         if thumbnail.shape != self._reference.shape or thumbnail.size == 0:
             return True
         self.last_difference = sum_squared_difference(thumbnail, self._reference) / thumbnail.size
@@ -650,16 +705,20 @@ class TrackTable:
         """Boxes (int32, (N, 4)) of the vehicles currently followed, not lost."""
         return self._boxes([t for t in self.tracks if not t.lost])
 
-    def merge(self, detections, support, frame):
+    def merge(self, detections, everything, frame):
         """Fold a full detection's results into the tracks, with patch tracking.
 
         Parameters
         ----------
         detections : Detections
-            Boxes from the hits outside the tracked boxes.
-        support : ndarray of int, shape (T,)
-            Hits on each followed track (in :meth:`tracked_boxes` order);
-            a followed track without any is unconfirmed by this search.
+            Boxes found from the hits outside the tracked boxes: candidates
+            for new vehicles.
+        everything : Detections
+            Boxes found from all the hits.  A followed vehicle that one of
+            them matches (IoU >= ``match_iou``) is confirmed and takes that
+            box, so its box follows the vehicle's size; one that none
+            matches is unconfirmed, and dropped after ``max_missed`` such
+            searches, so tracking cannot keep a false detection alive.
         frame : ndarray
             The frame, for the patches of new or revived vehicles.
         """
@@ -667,20 +726,22 @@ class TrackTable:
         followed = [t for t in self.tracks if not t.lost]
         lost = [t for t in self.tracks if t.lost]
         boxes = detections.xyxy
+        # A new box lying mostly inside a box that was searched around is
+        # more of that vehicle (whose box is refitted below), not a new one.
+        inside = box_intersection(self._boxes(followed), boxes) / np.maximum(_area(boxes), 1)
         used = np.zeros(len(detections), dtype=bool)
-        # A new box touching a tracked box is more of that vehicle (e.g. it
-        # grew as it came closer), not a new one: widen the track to cover it.
-        overlap = box_intersection(self._boxes(followed), boxes)
-        for c in range(len(detections)):
-            if followed and overlap[:, c].max() > 0:
-                track = followed[int(np.argmax(overlap[:, c]))]
-                track.box = np.concatenate([np.minimum(track.box[:2], boxes[c, :2]),
-                                            np.maximum(track.box[2:], boxes[c, 2:])])
-                track.history.replace_last(track.box)
-                track.score = max(track.score, float(detections.score[c]))
-                used[c] = True
-        for track, hits in zip(followed, support):
-            track.missed = 0 if hits > 0 else track.missed + 1
+        if followed:
+            used = inside.max(axis=0) >= cfg.merge_overlap
+        confirmed = set()
+        for r, c in greedy_matches(box_iou(self._boxes(followed), everything.xyxy),
+                                   cfg.match_iou):
+            track = followed[r]
+            track.box = everything.xyxy[c].copy()
+            track.history.replace_last(track.box)
+            track.score = float(everything.score[c])
+            confirmed.add(r)
+        for r, track in enumerate(followed):
+            track.missed = 0 if r in confirmed else track.missed + 1
         # A lost vehicle found again keeps its id, with a fresh patch.
         remaining = np.flatnonzero(~used)
         pairs = greedy_matches(box_iou(self._boxes(lost), boxes[remaining]), cfg.match_iou)
@@ -692,9 +753,9 @@ class TrackTable:
             track.missed = 0
             self._attach_patch(track, frame)
             used[c] = True
-        revived = {id(lost[r]) for r, _ in pairs}
-        for track in lost:
-            if id(track) not in revived:
+        revived = {r for r, _ in pairs}
+        for r, track in enumerate(lost):
+            if r not in revived:
                 track.missed += 1
         self.tracks = [t for t in self.tracks if t.missed <= cfg.max_missed]
         for c in np.flatnonzero(~used):
@@ -702,12 +763,14 @@ class TrackTable:
 
     # -- output -----------------------------------------------------------------
     def visible(self):
-        """Detections of the tracks to report this frame, ordered by id."""
-        if self.config.tracking:
-            shown = [t for t in self.tracks if not t.lost]
-        else:
-            shown = [t for t in self.tracks if t.missed == 0]
-        shown.sort(key=lambda t: t.id)
+        """Detections of the tracks to report this frame, ordered by id.
+
+        A track is reported while the last full detection confirmed it (and
+        patch tracking has not lost it since); an unconfirmed one is only
+        kept, hidden, so that its id survives a short miss.
+        """
+        shown = sorted((t for t in self.tracks if t.missed == 0 and not t.lost),
+                       key=lambda t: t.id)
         if not shown:
             return Detections(np.zeros((0, 4), np.int32), np.zeros(0, np.float32),
                               np.zeros(0, np.int64))
@@ -722,8 +785,21 @@ class TrackTable:
 
 
 # -- the pipeline -------------------------------------------------------------------
+class _Stopwatch:
+    """Calls methods and sums the time they take."""
+
+    def __init__(self):
+        self.seconds = 0.0
+
+    def __call__(self, method, *args):
+        start = time.perf_counter()
+        result = method(*args)
+        self.seconds += time.perf_counter() - start
+        return result
+
+
 def hits_outside(hits, boxes):
-    """Split hits into those not entirely inside any of ``boxes`` and per-box counts.
+    """The hits whose window is not entirely inside any of ``boxes``.
 
     Parameters
     ----------
@@ -732,22 +808,17 @@ def hits_outside(hits, boxes):
 
     Returns
     -------
-    outside : Hits
-        The hits whose window is not contained in any box.
-    support : ndarray of int64, shape (T,)
-        Number of hits whose window overlaps each box.
+    Hits
     """
     if len(boxes) == 0 or len(hits.scores) == 0:
-        return hits, np.zeros(len(boxes), dtype=np.int64)
+        return hits
     h = hits.boxes[:, None, :]
     b = np.asarray(boxes)[None, :, :]
     inside = ((h[..., 0] >= b[..., 0]) & (h[..., 1] >= b[..., 1])
               & (h[..., 2] <= b[..., 2]) & (h[..., 3] <= b[..., 3]))
-    support = (box_intersection(hits.boxes, boxes) > 0).sum(axis=0)
     keep = ~inside.any(axis=1)
-    outside = dataclasses.replace(hits, boxes=hits.boxes[keep], scores=hits.scores[keep],
-                                  scale_index=hits.scale_index[keep])
-    return outside, support
+    return dataclasses.replace(hits, boxes=hits.boxes[keep], scores=hits.scores[keep],
+                               scale_index=hits.scale_index[keep])
 
 
 class VideoPipeline:
@@ -760,8 +831,8 @@ class VideoPipeline:
         ``heat_region(hits, size)`` and ``boxes_from_heat(heat, origin,
         size)`` methods.
     config : TrackConfig, optional
-        Temporal settings; defaults built in (detection on every frame with
-        stable ids, no smoothing).
+        Temporal settings; defaults built in (detection on every frame,
+        exponential heat smoothing, stable ids).
 
     Attributes
     ----------
@@ -788,7 +859,6 @@ class VideoPipeline:
     def __init__(self, detector, config=None):
         self.detector = detector
         self.config = config or TrackConfig()
-        self._size = None
         self.reset()
 
     def reset(self):
@@ -826,8 +896,30 @@ class VideoPipeline:
 
     run = __call__
 
+    @property
+    def wants_frame(self):
+        """Whether the next :meth:`process` call looks at the frame's pixels.
+
+        It does not between periodic full detections without tracking; a
+        caller may then pass ``None`` instead of decoding the frame (e.g.
+        ``cv2.VideoCapture.grab`` without ``retrieve``).
+        """
+        return self.config.tracking or self._search_due()
+
+    def _search_due(self):
+        # The periodic schedule only; tracking adds its triggers on top.
+        period = self.config.search_period
+        return self._since_full is None or (period is not None
+                                            and self._since_full + 1 >= period)
+
     def process(self, frame):
         """Process the next frame of the stream.
+
+        Parameters
+        ----------
+        frame : ndarray or None
+            BGR uint8 frame (grey and BGRA accepted); ``None`` is allowed
+            when :attr:`wants_frame` is False.
 
         Returns
         -------
@@ -835,19 +927,31 @@ class VideoPipeline:
             With ``track_id`` set.
         """
         start = time.perf_counter()
+        if frame is None:
+            if self.wants_frame:
+                raise InputError("this frame is needed (a full detection or tracking is due)")
+            self._since_full += 1
+            self.frames += 1
+            detections = self._tracks.visible()
+            self.seconds["track"] += time.perf_counter() - start
+            return detections
         frame = as_bgr_frame(frame)
         size = (frame.shape[1], frame.shape[0])
         if size != self._size:
             self._start_stream(size)
         cfg = self.config
-        search = self._since_full is None or self._since_full + 1 >= cfg.every
+        search = self._search_due()
+        thumbnail = None
         if cfg.tracking:
             lost = self._tracks.follow(frame, self._radius) if self._tracks.tracks else False
             no_vehicle = not any(not t.lost for t in self._tracks.tracks)
-            search = search or lost or no_vehicle or self._scene.changed(frame)
+            search = search or lost or no_vehicle
+            if not search:
+                thumbnail = self._scene.thumbnail(frame)
+                search = self._scene.changed(frame, thumbnail)
         detect_seconds = 0.0
         if search:
-            detect_seconds = self._full_search(frame, size)
+            detect_seconds = self._full_search(frame, size, thumbnail)
             self._since_full = 0
             self.full_searches += 1
         else:
@@ -860,9 +964,11 @@ class VideoPipeline:
 
     # -- internals ------------------------------------------------------------------
     def _start_stream(self, size):
-        keep = (self.seconds, self.frames, self.full_searches)
-        self.reset()
-        self.seconds, self.frames, self.full_searches = keep
+        # A new frame size is a new stream: no track or heat carries over,
+        # but ids keep counting up so they stay unique for this pipeline.
+        self._tracks.reset()
+        self._heat.reset()
+        self._since_full = None
         self._size = size
         width, height = size
         self._band = (0, 0, width, height)
@@ -873,47 +979,54 @@ class VideoPipeline:
                 # Heat is only ever non-zero where some scale searches.
                 self._band = (min(r[0] for r in rois), min(r[1] for r in rois),
                               max(r[2] for r in rois), max(r[3] for r in rois))
-        reference = getattr(getattr(getattr(self.detector, "config", None), "search", None),
-                            "reference_size", size)
-        scale = math.sqrt(width / reference[0] * height / reference[1])
+        # Like the detector's scales, the radius is given for its reference
+        # frame size (a detector without one: for the frame itself).
+        search_config = getattr(getattr(self.detector, "config", None), "search", None)
+        ref_w, ref_h = getattr(search_config, "reference_size", size)
+        scale = math.sqrt(width / ref_w * height / ref_h)
         self._radius = int(round(self.config.search_radius * scale))
         self._scene = SceneChangeTrigger(self.config.scene_change_threshold,
                                          self.config.thumbnail_factor,
                                          rows=(self._band[1], self._band[3]))
 
-    def _full_search(self, frame, size):
+    def _full_search(self, frame, size, thumbnail=None):
         """Detect, smooth, associate; returns the seconds spent in the detector."""
         detector = self.detector
-        t0 = time.perf_counter()
-        hits = detector.hits(frame)
-        t1 = time.perf_counter()
-        support = None
-        if self.config.tracking:
-            hits, support = hits_outside(hits, self._tracks.tracked_boxes())
-        t2 = time.perf_counter()
-        heat, origin = detector.heat_region(hits, size)
-        t3 = time.perf_counter()
-        heat, origin = self._smoothed_heat(heat, origin)
-        t4 = time.perf_counter()
-        detections = detector.boxes_from_heat(heat, origin, size)
-        t5 = time.perf_counter()
-        if self.config.tracking:
-            self._tracks.merge(detections, support, frame)
-            self._scene.set_reference(frame)
-        else:
-            self._tracks.associate(detections, frame)
-        return (t1 - t0) + (t3 - t2) + (t5 - t4)
+        in_detector = _Stopwatch()
+        hits = in_detector(detector.hits, frame)
+        if not self.config.tracking:
+            self._tracks.associate(self._detect(hits, size, in_detector), frame)
+            return in_detector.seconds
+        tracked = self._tracks.tracked_boxes()
+        everything = Detections.empty()
+        if len(tracked):
+            # The detector's own view, from all hits and unsmoothed, confirms
+            # and refits the followed vehicles independently of the tracker.
+            heat, origin = in_detector(detector.heat_region, hits, size)
+            everything = in_detector(detector.boxes_from_heat, heat, origin, size)
+        # New vehicles are searched for outside the tracked boxes only.
+        detections = self._detect(hits_outside(hits, tracked), size, in_detector)
+        self._tracks.merge(detections, everything, frame)
+        self._scene.set_reference(frame, thumbnail)
+        return in_detector.seconds
+
+    def _detect(self, hits, size, in_detector):
+        heat, origin = in_detector(self.detector.heat_region, hits, size)
+        heat, origin = self._smoothed_heat(heat, origin)   # the tracker's time
+        return in_detector(self.detector.boxes_from_heat, heat, origin, size)
 
     def _smoothed_heat(self, heat, origin):
         if self.config.heat_smoothing == "none":
             return heat, origin
         # Smoothing needs the same pixels every frame: the whole search band.
         bx1, by1, bx2, by2 = self._band
-        band = np.zeros((by2 - by1, bx2 - bx1), dtype=np.float32)
         x1, y1 = max(origin[0], bx1), max(origin[1], by1)
         x2 = min(origin[0] + heat.shape[1], bx2)
         y2 = min(origin[1] + heat.shape[0], by2)
+        region = np.zeros((0, 0), np.float32)
         if x2 > x1 and y2 > y1:
-            band[y1 - by1:y2 - by1, x1 - bx1:x2 - bx1] = heat[y1 - origin[1]:y2 - origin[1],
-                                                             x1 - origin[0]:x2 - origin[0]]
-        return self._heat.update(band), (bx1, by1)
+            region = heat[y1 - origin[1]:y2 - origin[1], x1 - origin[0]:x2 - origin[0]]
+        else:
+            x1, y1 = bx1, by1
+        smoothed = self._heat.update(region, (x1 - bx1, y1 - by1), (by2 - by1, bx2 - bx1))
+        return smoothed, (bx1, by1)

@@ -72,7 +72,9 @@ def test_plans_scale_with_the_frame(random_model):
 
 
 def test_heatmap_and_boxes_from_known_hits(random_model):
-    config = DetectorConfig(heat=HeatConfig(threshold=1), boxes=BoxConfig(min_size=1, horizon_y=0))
+    config = DetectorConfig(heat=HeatConfig(threshold=1, weighting="count", peak_fraction=0),
+                            boxes=BoxConfig(min_size=1, horizon_y=0, width_scale=1,
+                                            height_scale=1, center_dy=0))
     detector = Detector(random_model, config, threads=1)
     boxes = np.array([[10, 10, 50, 50], [20, 20, 60, 60], [200, 200, 240, 240]], np.int32)
     hits = Hits(boxes, np.ones(3, np.float32), np.zeros(3, np.int64), 3)
@@ -119,8 +121,10 @@ def test_one_scale_config_scores_only_that_scale(random_model):
 
 
 def _boxes_from_hits(model, windows, split, min_size=48):
-    config = DetectorConfig(heat=HeatConfig(threshold=0.5, split=split, split_min_size=min_size),
-                            boxes=BoxConfig(min_size=10, horizon_y=0, max_aspect=5))
+    config = DetectorConfig(heat=HeatConfig(threshold=0.5, weighting="count", peak_fraction=0,
+                                            split=split, split_min_size=min_size),
+                            boxes=BoxConfig(min_size=10, horizon_y=0, max_aspect=5, width_scale=1,
+                                            height_scale=1, center_dy=0))
     detector = Detector(model, config, threads=1)
     boxes = np.array(windows, np.int32)
     hits = Hits(boxes, np.ones(len(boxes), np.float32), np.zeros(len(boxes), np.int64), len(boxes))
@@ -150,3 +154,12 @@ def test_small_parts_are_not_split_off(random_model):
     assert _boxes_from_hits(random_model, big + small, split=True) == [[400, 400, 522, 475]]
     # The same blob splits when parts of 20 pixels count as cars.
     assert len(_boxes_from_hits(random_model, big + small, split=True, min_size=20)) == 2
+
+
+def test_shape_correction_scales_about_the_centre(random_model):
+    config = DetectorConfig(boxes=BoxConfig(width_scale=1.5, height_scale=0.5, center_dy=0.25))
+    detector = Detector(random_model, config, threads=1)
+    boxes = np.array([[100, 100, 200, 200], [0, 0, 40, 40]], np.int32)
+    out = detector.reshape_boxes(boxes, (1280, 720))
+    assert out[0].tolist() == [75, 150, 225, 200]   # centre y moved by 25, half height 25
+    assert out[1].tolist() == [0, 20, 50, 40]       # clipped to the frame

@@ -13,7 +13,9 @@ Algorithms
 thresholds it in one pass, without materialising H and V.
 
 ``mask_overlap_search`` scores candidate offsets of the reference mask
-inside a larger candidate mask by intersection over union.  The candidate's
+inside a larger candidate mask by intersection over union, counted within
+the reference's rectangle (set candidate pixels outside it do not count, so
+the background around a vehicle does not penalise the match).  The candidate's
 pixel count under each offset comes from its summed-area table (O(1) per
 offset).  The intersection uses row bitsets: both masks are packed 64 pixels
 to a ``uint64``, each candidate word is realigned to the reference by two
@@ -227,7 +229,7 @@ def grey_thumbnail(image, factor):
     image : ndarray of uint8, shape (H, W, 3)
         C-contiguous.
     factor : int
-        Block side (>= 1); pixels beyond the last whole block are ignored.
+        Block side, 1 to 256; pixels beyond the last whole block are ignored.
 
     Returns
     -------
@@ -238,20 +240,19 @@ def grey_thumbnail(image, factor):
     out_h, out_w = height // factor, width // factor
     flat = image.reshape(height, width * 3)
     used = out_w * factor * 3
-    # Rows are summed first over contiguous memory (vectorised), then the
-    # per-column totals are folded into blocks once per block row.
-    column_sums = np.zeros(used, dtype=np.int32)
+    # The rows of a block row are first summed element-wise over contiguous
+    # memory; uint16 holds up to 256 rows of 255 and keeps the vector
+    # lanes narrow, which is what makes this pass fast.
+    column_sums = np.zeros(used, dtype=np.uint16)
     scale = np.float32(1.0 / (3 * factor * factor))
+    span = factor * 3
     out = np.empty((out_h, out_w), dtype=np.float32)
     for by in range(out_h):
         column_sums[:] = 0
         for y in range(by * factor, (by + 1) * factor):
-            row = flat[y]
-            for x in range(used):
-                column_sums[x] += row[x]
-        span = factor * 3
+            column_sums += flat[y, :used]
         for bx in range(out_w):
-            total = np.int32(0)
+            total = np.uint32(0)
             for x in range(bx * span, (bx + 1) * span):
                 total += column_sums[x]
             out[by, bx] = np.float32(total) * scale
