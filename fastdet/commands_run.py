@@ -15,6 +15,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from .errors import InputError
 from .io import FORMATS
 
@@ -58,6 +60,8 @@ def add_run_parser(subparsers):
     run.add_argument("--track", action="store_true",
                      help="patch tracking between full detections (sets track.tracking)")
     run.add_argument("--quiet", "-q", action="store_true", help="no progress bar or notices")
+    run.add_argument("--debug-view", action="store_true",
+                     help="draw the live heat map and per-frame timings into the output video")
     run.set_defaults(handler=cmd_run)
     return run
 
@@ -165,7 +169,27 @@ class RunStats:
                 f"ms/frame: {per_frame}{written}")
 
 
-def stream(reader, pipeline, first_index, video_out=None, det_out=None, progress=None):
+def _debug_view(frame, detections, pipeline):
+    """The frame with boxes, the live heat map inset and the detector's stage timings."""
+    from .detect import STAGES
+    from .viz import debug_frame
+
+    heat = np.zeros(frame.shape[:2], np.float32)
+    if pipeline.last_heat is not None:
+        region, (x0, y0) = pipeline.last_heat
+        h = min(region.shape[0], heat.shape[0] - y0)
+        w = min(region.shape[1], heat.shape[1] - x0)
+        if h > 0 and w > 0:
+            heat[y0:y0 + h, x0:x0 + w] = region[:h, :w]
+    timings = pipeline.detector.timings
+    timings_ms = {stage: 1e3 * timings[stage] for stage in STAGES if stage in timings}
+    # A fixed scale keeps the inset's brightness from pumping with each frame's peak.
+    scale = 4 * pipeline.detector.config.heat.threshold or None
+    return debug_frame(frame, detections, heat, timings_ms, heat_max=scale)
+
+
+def stream(reader, pipeline, first_index, video_out=None, det_out=None, progress=None,
+           debug_view=False):
     """Push every frame of ``reader`` through the pipeline to the outputs.
 
     Parameters
@@ -180,6 +204,8 @@ def stream(reader, pipeline, first_index, video_out=None, det_out=None, progress
     det_out : DetectionWriter, optional
         Receives each frame's detections.
     progress : Progress, optional
+    debug_view : bool
+        Draw the live heat map and per-stage timings into the video frames.
 
     Returns
     -------
@@ -208,7 +234,10 @@ def stream(reader, pipeline, first_index, video_out=None, det_out=None, progress
             detections = pipeline.process(frame)
             t2 = time.perf_counter()
             if video_out is not None:
-                draw_detections_inplace(frame, detections)
+                if debug_view:
+                    frame = _debug_view(frame, detections, pipeline)
+                else:
+                    draw_detections_inplace(frame, detections)
                 t3 = time.perf_counter()
                 video_out.write(frame)
                 t4 = time.perf_counter()
@@ -277,7 +306,8 @@ def cmd_run(args):
                             enabled=not args.quiet and sys.stderr.isatty())
         # An interrupt comes back as stats.interrupted, so leaving this block
         # normally completes both outputs with every frame done so far.
-        stats = stream(reader, pipeline, args.start, video_out, det_out, progress)
+        stats = stream(reader, pipeline, args.start, video_out, det_out, progress,
+                       debug_view=args.debug_view)
         progress.clear()
     print(stats.summary([p for p in (out, detections_path) if p is not None]), flush=True)
     if stats.interrupted:

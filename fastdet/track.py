@@ -868,6 +868,7 @@ class VideoPipeline:
         self._since_full = None
         self._size = None
         self.seconds = {"detect": 0.0, "track": 0.0}
+        self.last_heat = None
         self.frames = 0
         self.full_searches = 0
 
@@ -1013,6 +1014,8 @@ class VideoPipeline:
     def _detect(self, hits, size, in_detector):
         heat, origin = in_detector(self.detector.heat_region, hits, size)
         heat, origin = self._smoothed_heat(heat, origin)   # the tracker's time
+        #: The smoothed heat over a region of the last fully searched frame, and its origin.
+        self.last_heat = (heat, origin)
         return in_detector(self.detector.boxes_from_heat, heat, origin, size)
 
     def _smoothed_heat(self, heat, origin):

@@ -258,3 +258,17 @@ def test_pipeline_frames_are_numbered_from_the_video_start(stub_pipeline, block_
     indices = [i for i, *_ in VideoPipeline(BlockDetector())(frames, first_index=7)]
     assert indices == [7, 8, 9]
     assert np.all(np.asarray(indices) >= 7)
+
+
+def test_debug_view_draws_heat_inset_and_timings(fastdet, model_args, data_dir, tmp_path):
+    plain, debug = tmp_path / "plain.mp4", tmp_path / "debug.mp4"
+    for out, extra in ((plain, []), (debug, ["--debug-view"])):
+        code = fastdet(["run", str(data_dir / "test_video.mp4"), "--out", str(out), "--end", "3",
+                        "--quiet", *extra, *model_args])
+        assert code == 0
+    assert video_frames(debug)[:2] == (3, (1280, 720))
+    a = cv2.VideoCapture(str(plain)).read()[1].astype(int)
+    b = cv2.VideoCapture(str(debug)).read()[1].astype(int)
+    # The inset sits in the top-right corner and the timings in the top-left one.
+    assert np.abs(a[:100, -300:] - b[:100, -300:]).mean() > 10
+    assert np.abs(a[:60, :150] - b[:60, :150]).mean() > 10
