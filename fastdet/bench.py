@@ -429,7 +429,10 @@ def run_benchmark(frames, threads=(1,), repeat=3, reference_frames=5, opencv=Tru
 
 # -- tables ---------------------------------------------------------------------
 def _ratio(value):
-    return "n/a" if not math.isfinite(value) else f"{value:.1f}x"
+    if not math.isfinite(value):
+        return "n/a"
+    # Two significant digits below 1 (the reference is ~0.01x of OpenCV).
+    return f"{value:.1f}x" if value >= 1 else f"{value:.2g}x"
 
 
 def format_table(run):

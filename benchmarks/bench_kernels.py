@@ -1,0 +1,147 @@
+"""The Numba kernels one at a time, on whole frames of four sizes.
+
+Each kernel gets the input it gets in detection, built from the first frame
+of the shared test video resized to the parameter size: the HLS image for
+the gradient histograms, its cells for block normalisation and window
+scoring, window-sized boxes for the heat map, the thresholded heat for
+labelling.  Kernels are compiled (or loaded from Numba's cache) in ``setup``,
+so only the run is timed.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from fastdet.kernels.blocks import normalize_blocks
+from fastdet.kernels.heat import accumulate_heat
+from fastdet.kernels.hog import cell_histograms
+from fastdet.kernels.label import component_boxes, label_components
+from fastdet.kernels.score import add_hog_scores, add_hog_scores_from_cells, window_count
+
+from ._common import SIZES, test_frame
+
+PIXELS_PER_CELL = (8, 8)
+CELLS_PER_BLOCK = (2, 2)
+ORIENTATIONS = 9
+NORM = "L2-Hys"
+#: Blocks per 64-pixel window side (8 cells, 2-cell blocks).
+BLOCKS_PER_WINDOW = 7
+#: Window step in cells (50% overlap, the default scales' common step).
+STEP_CELLS = 4
+#: Hit boxes per frame for the heat and labelling kernels.
+HITS = 300
+
+
+def hls_image(label):
+    return np.ascontiguousarray(cv2.cvtColor(test_frame(SIZES[label]), cv2.COLOR_BGR2HLS))
+
+
+class GradientHistograms:
+    """``cell_histograms``: gradients, orientation votes and cell pooling (3 channels)."""
+
+    params = (list(SIZES), [False, True])
+    param_names = ("frame_size", "parallel")
+
+    def setup(self, label, parallel):
+        self.image = hls_image(label)
+        self.out = cell_histograms(self.image, PIXELS_PER_CELL, ORIENTATIONS, parallel=parallel)
+
+    def time_cell_histograms(self, label, parallel):
+        cell_histograms(self.image, PIXELS_PER_CELL, ORIENTATIONS, parallel=parallel,
+                        out=self.out)
+
+
+class BlockNormalisation:
+    """``normalize_blocks``: L2-Hys over every 2x2-cell block of the cell map."""
+
+    params = (list(SIZES), [False, True])
+    param_names = ("frame_size", "parallel")
+
+    def setup(self, label, parallel):
+        self.cells = cell_histograms(hls_image(label), PIXELS_PER_CELL, ORIENTATIONS)
+        self.out = normalize_blocks(self.cells, CELLS_PER_BLOCK, NORM, parallel=parallel)
+
+    def time_normalize_blocks(self, label, parallel):
+        normalize_blocks(self.cells, CELLS_PER_BLOCK, NORM, parallel=parallel, out=self.out)
+
+
+class WindowScoring:
+    """HOG part of every 64x64 window's SVM score, step 4 cells.
+
+    ``fused`` is detection's one-thread path (normalise a block row and score
+    it at once); ``from_blocks`` scores a ready block map (the multi-thread
+    path, here on one thread).
+    """
+
+    params = (list(SIZES),)
+    param_names = ("frame_size",)
+
+    def setup(self, label):
+        self.cells = cell_histograms(hls_image(label), PIXELS_PER_CELL, ORIENTATIONS)
+        self.blocks = normalize_blocks(self.cells, CELLS_PER_BLOCK, NORM)
+        rng = np.random.default_rng(0)
+        self.weights = rng.standard_normal(
+            (BLOCKS_PER_WINDOW, BLOCKS_PER_WINDOW, self.blocks.shape[2])).astype(np.float32)
+        grid = (window_count(self.blocks.shape[0], BLOCKS_PER_WINDOW, STEP_CELLS),
+                window_count(self.blocks.shape[1], BLOCKS_PER_WINDOW, STEP_CELLS))
+        self.scores = np.zeros(grid, np.float32)
+        self.time_fused(label)
+        self.time_from_blocks(label)
+
+    def time_fused(self, label):
+        add_hog_scores_from_cells(self.cells, CELLS_PER_BLOCK, NORM, self.weights, STEP_CELLS,
+                                  self.scores)
+
+    def time_from_blocks(self, label):
+        add_hog_scores(self.blocks, self.weights, STEP_CELLS, self.scores)
+
+    def track_windows(self, label):
+        return int(self.scores.size)
+
+    track_windows.unit = "windows"
+
+
+def hit_boxes(size, count=HITS, seed=0):
+    """``count`` window-like boxes (48 to 160 px at 1280x720, scaled) in the lower half."""
+    width, height = size
+    k = width / 1280
+    rng = np.random.default_rng(seed)
+    sides = (rng.uniform(48, 160, count) * k).astype(np.int32)
+    x1 = (rng.uniform(0, 1, count) * (width - sides)).astype(np.int32)
+    y1 = (height // 2 + rng.uniform(0, 1, count) * (height // 2 - sides)).astype(np.int32)
+    return np.stack([x1, y1, x1 + sides, y1 + sides], axis=1).astype(np.int32)
+
+
+class HeatAccumulation:
+    """``accumulate_heat``: 300 hit boxes into a frame-sized heat map."""
+
+    params = (list(SIZES),)
+    param_names = ("frame_size",)
+
+    def setup(self, label):
+        self.size = SIZES[label]
+        self.boxes = hit_boxes(self.size)
+        self.weights = np.ones(len(self.boxes), np.float32)
+        self.time_accumulate_heat(label)
+
+    def time_accumulate_heat(self, label):
+        accumulate_heat(self.boxes, self.weights, self.size[1], self.size[0])
+
+
+class Labelling:
+    """``label_components`` + ``component_boxes`` on the thresholded heat (8-connected)."""
+
+    params = (list(SIZES),)
+    param_names = ("frame_size",)
+
+    def setup(self, label):
+        width, height = SIZES[label]
+        boxes = hit_boxes((width, height))
+        heat = accumulate_heat(boxes, np.ones(len(boxes), np.float32), height, width)
+        self.mask = heat > 1
+        self.time_label_and_box(label)
+
+    def time_label_and_box(self, label):
+        labels, count = label_components(self.mask, 8)
+        component_boxes(labels, count)
