@@ -27,8 +27,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from sklearn.preprocessing import StandardScaler
-from sklearn.svm import LinearSVC
 
 from .errors import InputError
 from .features import WINDOW, FeatureLayout, FeatureOptions, features_of_crops
@@ -136,6 +134,10 @@ def fit_linear_svm(features, labels, C=0.001, seed=0):
     weights : ndarray of float32, shape (F,)
     bias : float
     """
+    # Imported here: scikit-learn doubles fastdet's import time, and detection never needs it.
+    from sklearn.preprocessing import StandardScaler
+    from sklearn.svm import LinearSVC
+
     scaler = StandardScaler().fit(features)
     # Constant features have scale 1 in sklearn already; guard anyway.
     scale = np.where(scaler.scale_ > 0, scaler.scale_, 1.0)

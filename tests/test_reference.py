@@ -18,10 +18,13 @@ import cv2
 import numpy as np
 import pytest
 
-from fastdet.config import DetectorConfig, HeatConfig, ScaleConfig, SearchConfig
+from fastdet.config import BoxConfig, DetectorConfig, HeatConfig, ScaleConfig, SearchConfig
 from fastdet.detect import Detector
 from fastdet.features import FeatureLayout, FeatureOptions
 from fastdet.model import Model
+
+#: Box filters without fastdet's shape correction, which the published pipeline lacks.
+PUBLISHED_BOXES = BoxConfig(width_scale=1.0, height_scale=1.0, center_dy=0.0)
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 # benchmarks/ is not an installed package; make it importable however pytest
@@ -173,13 +176,15 @@ def test_detections_match_fastdet(image):
     fast_grids = fastdet_window_scores(Detector(model), frame)
     # The reference merges hits the published way: no blob splitting.
     config = DetectorConfig(search=SearchConfig(
-        decision_threshold=threshold_in_a_gap(fast_grids, 0.95)), heat=HeatConfig(split=False))
+        decision_threshold=threshold_in_a_gap(fast_grids, 0.95)),
+        heat=HeatConfig(threshold=1.0, weighting="count", split=False, peak_fraction=0.0),
+        boxes=PUBLISHED_BOXES)
     compare_detections(frame, model, config)
 
 
 @pytest.mark.parametrize("heat", [
-    HeatConfig(threshold=1.5, weighting="area", connectivity=4, split=False),
-    HeatConfig(threshold=2.0, weighting="margin", connectivity=8, split=False),
+    HeatConfig(threshold=1.5, weighting="area", connectivity=4, split=False, peak_fraction=0.0),
+    HeatConfig(threshold=2.0, weighting="margin", connectivity=8, split=False, peak_fraction=0.0),
 ], ids=["area-4", "margin-8"])
 def test_detections_match_fastdet_for_heat_variants(heat):
     frame = load_frame("test4.jpg")
@@ -187,4 +192,5 @@ def test_detections_match_fastdet_for_heat_variants(heat):
     config = DetectorConfig(search=SMALL_SEARCH)
     fast_grids = fastdet_window_scores(Detector(model, config), frame)
     search = replace(SMALL_SEARCH, decision_threshold=threshold_in_a_gap(fast_grids, 0.7))
-    compare_detections(frame, model, DetectorConfig(search=search, heat=heat))
+    compare_detections(frame, model, DetectorConfig(search=search, heat=heat,
+                                                    boxes=PUBLISHED_BOXES))
