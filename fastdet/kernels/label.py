@@ -219,6 +219,38 @@ def label_components(mask, connectivity):
     return labels, int(count)
 
 
+@numba.njit(cache=True, inline="always")
+def _sentinel_boxes(count, width, height):
+    """Boxes with inverted bounds, so the first included pixel sets every bound."""
+    boxes = np.empty((count, 4), dtype=np.int32)
+    boxes[:, 0] = width
+    boxes[:, 1] = height
+    boxes[:, 2] = 0
+    boxes[:, 3] = 0
+    return boxes
+
+
+@numba.njit(cache=True, inline="always")
+def _include(boxes, row, x, y):
+    """Grow box ``row`` to contain pixel (x, y)."""
+    if x < boxes[row, 0]:
+        boxes[row, 0] = x
+    if y < boxes[row, 1]:
+        boxes[row, 1] = y
+    if x + 1 > boxes[row, 2]:
+        boxes[row, 2] = x + 1
+    if y + 1 > boxes[row, 3]:
+        boxes[row, 3] = y + 1
+
+
+@numba.njit(cache=True, inline="always")
+def _zero_unused(boxes):
+    """Boxes that never included a pixel become [0, 0, 0, 0]."""
+    for row in range(boxes.shape[0]):
+        if boxes[row, 2] == 0:
+            boxes[row, :] = 0
+
+
 @numba.njit(cache=True)
 def component_boxes(labels, count):
     """Bounding boxes of labelled components.
@@ -240,28 +272,13 @@ def component_boxes(labels, count):
         Labels without any pixel get ``[0, 0, 0, 0]``.
     """
     height, width = labels.shape
-    boxes = np.empty((count, 4), dtype=np.int32)
-    # Inverted sentinels so the first pixel of a label sets every bound.
-    boxes[:, 0] = width
-    boxes[:, 1] = height
-    boxes[:, 2] = 0
-    boxes[:, 3] = 0
+    boxes = _sentinel_boxes(count, width, height)
     for y in range(height):
         for x in range(width):
             label = labels[y, x]
-            if label <= 0 or label > count:
-                continue
-            row = label - 1
-            if x < boxes[row, 0]:
-                boxes[row, 0] = x
-            if y < boxes[row, 1]:
-                boxes[row, 1] = y
-            if x + 1 > boxes[row, 2]:
-                boxes[row, 2] = x + 1
-            boxes[row, 3] = y + 1  # raster order: y never decreases
-    for row in range(count):
-        if boxes[row, 2] == 0:
-            boxes[row, :] = 0
+            if 0 < label <= count:
+                _include(boxes, label - 1, x, y)
+    _zero_unused(boxes)
     return boxes
 
 
@@ -328,29 +345,13 @@ def component_core_boxes(labels, count, values, thresholds):
         ``[0, 0, 0, 0]`` for a label with no pixel at or above its threshold.
     """
     height, width = labels.shape
-    boxes = np.empty((count, 4), dtype=np.int32)
-    boxes[:, 0] = width
-    boxes[:, 1] = height
-    boxes[:, 2] = 0
-    boxes[:, 3] = 0
+    boxes = _sentinel_boxes(count, width, height)
     for y in range(height):
         for x in range(width):
             label = labels[y, x]
-            if label <= 0 or label > count:
-                continue
-            row = label - 1
-            if not values[y, x] >= thresholds[row]:
-                continue
-            if x < boxes[row, 0]:
-                boxes[row, 0] = x
-            if y < boxes[row, 1]:
-                boxes[row, 1] = y
-            if x + 1 > boxes[row, 2]:
-                boxes[row, 2] = x + 1
-            boxes[row, 3] = y + 1
-    for row in range(count):
-        if boxes[row, 2] == 0:
-            boxes[row, :] = 0
+            if 0 < label <= count and values[y, x] >= thresholds[label - 1]:
+                _include(boxes, label - 1, x, y)
+    _zero_unused(boxes)
     return boxes
 
 
@@ -410,11 +411,7 @@ def split_component(heat, mask, levels, min_width, min_height, connectivity):
                     and parts[k, 3] - parts[k, 1] >= min_height):
                 seeds[n] = parts[k]
                 n += 1
-        out = np.empty((big, 4), dtype=np.int32)
-        out[:, 0] = width
-        out[:, 1] = height
-        out[:, 2] = 0
-        out[:, 3] = 0
+        out = _sentinel_boxes(big, width, height)
         for y in range(height):
             for x in range(width):
                 if not mask[y, x]:
@@ -428,19 +425,13 @@ def split_component(heat, mask, levels, min_width, min_height, connectivity):
                     if distance < best_distance:
                         best_distance = distance
                         best = k
-                out[best, 0] = min(out[best, 0], x)
-                out[best, 1] = min(out[best, 1], y)
-                out[best, 2] = max(out[best, 2], x + 1)
-                out[best, 3] = max(out[best, 3], y + 1)
+                _include(out, best, x, y)
+        _zero_unused(out)
         return out
-    whole = np.zeros((1, 4), dtype=np.int32)
-    whole[0, 0] = width
-    whole[0, 1] = height
+    whole = _sentinel_boxes(1, width, height)
     for y in range(height):
         for x in range(width):
             if mask[y, x]:
-                whole[0, 0] = min(whole[0, 0], x)
-                whole[0, 1] = min(whole[0, 1], y)
-                whole[0, 2] = max(whole[0, 2], x + 1)
-                whole[0, 3] = max(whole[0, 3], y + 1)
+                _include(whole, 0, x, y)
+    _zero_unused(whole)
     return whole
