@@ -26,44 +26,68 @@ _FASTMATH = {"reassoc", "nsz", "contract"}
 _C = uint64(3)
 
 
+@njit(cache=True)
+def _lut_row(src, lut_flat, weight):
+    """weight[x] = sum over channels of the LUT entry of pixel x's value."""
+    for x in range(uint64(weight.size)):
+        weight[x] = (lut_flat[uint64(src[x * _C])]
+                     + lut_flat[uint64(256) + uint64(src[x * _C + uint64(1)])]
+                     + lut_flat[uint64(512) + uint64(src[x * _C + uint64(2)])])
+
+
 @njit(cache=True, fastmath=_FASTMATH)
+def _add_tile_sums(weight, tile, row):
+    """row[tx] += sum of weight over tile tx."""
+    t64 = uint64(tile)
+    for tx in range(uint64(row.size)):
+        total = np.float32(0.0)
+        for x in range(tx * t64, (tx + uint64(1)) * t64):
+            total += weight[x]
+        row[tx] += total
+
+
+@njit(cache=True)
+def _add_row(src, column_sum):
+    """column_sum += src (as float32), element by element."""
+    for k in range(uint64(column_sum.size)):
+        column_sum[k] += np.float32(src[k])
+
+
+@njit(cache=True, fastmath=_FASTMATH)
+def _box_row(column_sum, factor, scale, dest):
+    """dest[ox, c] = scale * sum over dx of column_sum[ox * factor + dx, c]."""
+    f64 = uint64(factor)
+    for ox in range(uint64(dest.size // 3)):
+        for c in range(_C):
+            total = np.float32(0.0)
+            for dx in range(f64):
+                total += column_sum[(ox * f64 + dx) * _C + c]
+            dest[ox * _C + c] = total * scale
+
+
+@njit(cache=True)
 def _colour_maps(image, lut, tile, factor, want_tiles, want_box, tiles, box):
+    # Each row pass is its own small function: LLVM vectorises the short,
+    # alias-free loops that one big loop body kept it from vectorising.
     height, width = image.shape[0], image.shape[1]
     flat = image.reshape(height, width * 3)
     lut_flat = lut.reshape(lut.size)
-    weight = np.zeros(max(width, 1), dtype=np.float32)
-    box_w = uint64(box.shape[1])
-    column_sum = np.zeros(max(width * 3, 1), dtype=np.float32)
-    t64 = uint64(tile)
-    f64 = uint64(factor)
-    tiles_x = uint64(tiles.shape[1])
+    tiles_x = tiles.shape[1]
+    weight = np.zeros(tiles_x * tile, dtype=np.float32)
+    box_w = box.shape[1]
+    column_sum = np.zeros(box_w * factor * 3, dtype=np.float32)
     scale = np.float32(1.0 / (factor * factor)) if factor > 0 else np.float32(0.0)
     tile_rows = tiles.shape[0] * tile if want_tiles else 0
     box_rows = box.shape[0] * factor if want_box else 0
     for y in range(max(tile_rows, box_rows)):
         src = flat[y]
         if y < tile_rows:
-            for x in range(uint64(width)):
-                weight[x] = (lut_flat[uint64(src[x * _C])]
-                             + lut_flat[uint64(256) + uint64(src[x * _C + uint64(1)])]
-                             + lut_flat[uint64(512) + uint64(src[x * _C + uint64(2)])])
-            row = tiles[y // tile]
-            for tx in range(tiles_x):
-                total = np.float32(0.0)
-                for x in range(tx * t64, (tx + uint64(1)) * t64):
-                    total += weight[x]
-                row[tx] += total
+            _lut_row(src, lut_flat, weight)
+            _add_tile_sums(weight, tile, tiles[y // tile])
         if y < box_rows:
-            for k in range(uint64(box_w * f64 * _C)):
-                column_sum[k] += np.float32(src[k])
+            _add_row(src, column_sum)
             if (y + 1) % factor == 0:
-                dest = box[y // factor].reshape(box.shape[1] * 3)
-                for ox in range(box_w):
-                    for c in range(_C):
-                        total = np.float32(0.0)
-                        for dx in range(f64):
-                            total += column_sum[(ox * f64 + dx) * _C + c]
-                        dest[ox * _C + c] = total * scale
+                _box_row(column_sum, factor, scale, box[y // factor].reshape(box_w * 3))
                 column_sum[:] = 0.0
 
 
