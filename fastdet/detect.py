@@ -429,9 +429,16 @@ class Detector:
         if heat.size == 0:
             return empty
         cfg = self.config.heat
-        labels, count = label_components(heat > cfg.threshold, cfg.connectivity)
-        if count == 0:
+        mask = heat > cfg.threshold
+        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+        if rows.size == 0:
             return empty
+        # Label only the part of the region where the heat passes the threshold.
+        y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+        heat = np.ascontiguousarray(heat[y0:y1, x0:x1])
+        origin = (origin[0] + int(x0), origin[1] + int(y0))
+        labels, count = label_components(np.ascontiguousarray(mask[y0:y1, x0:x1]),
+                                         cfg.connectivity)
         peaks = component_max(labels, count, heat)
         whole = component_boxes(labels, count)
         boxes = whole
