@@ -54,8 +54,11 @@ def cmd_detect(args):
     out_dir = Path(args.out_dir) if args.out_dir else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-    for name in args.images:
+    for index, name in enumerate(args.images):
         image = read_image(name)
+        if index == 0:
+            # Load the compiled kernels first, so "ms" is detection time only.
+            detector(image)
         start = time.perf_counter()
         detections = detector(image)
         elapsed_ms = (time.perf_counter() - start) * 1e3
