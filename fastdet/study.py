@@ -135,11 +135,11 @@ def format_markdown(rows):
 
 def plot(rows, path):
     """Grouped bars of leak-free accuracy per colour space and feature set (PNG)."""
-    from .viz import _new_figure, _save_figure
+    from .viz import new_figure, save_figure
 
     spaces = list(dict.fromkeys(r.color_space for r in rows))
     sets = list(dict.fromkeys(r.feature_set for r in rows))
-    figure = _new_figure(1000, 450)
+    figure = new_figure(1000, 450)
     axes = figure.add_subplot(1, 1, 1)
     width = 0.8 / len(sets)
     for k, name in enumerate(sets):
@@ -153,4 +153,4 @@ def plot(rows, path):
     axes.set_title("Colour space and feature set (LinearSVC, leak-free split)")
     axes.legend(loc="lower right")
     figure.tight_layout()
-    return _save_figure(figure, path)
+    return save_figure(figure, path)

@@ -176,7 +176,7 @@ def _draw_timings(canvas, timings_ms, text_scale):
 
 
 # -- figures (matplotlib) ---------------------------------------------------
-def _new_figure(width_px, height_px):
+def new_figure(width_px, height_px):
     """An empty matplotlib figure of the given pixel size on an Agg canvas."""
     try:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -215,7 +215,7 @@ def _supported_formats():
     return sorted(FigureCanvasBase.get_supported_filetypes())
 
 
-def _save_figure(figure, path):
+def save_figure(figure, path):
     """Write ``figure`` atomically; returns ``path`` as a Path."""
     path = check_output_path(path)
     with atomic_path(path) as tmp:
@@ -298,7 +298,7 @@ def samples_figure(dataset, path, n=8, seed=None):
     rng = np.random.default_rng(seed)
     check_output_path(path)
     width, height = samples_figure_size(n)
-    figure = _new_figure(width, height)
+    figure = new_figure(width, height)
     columns = min(n, SAMPLE_COLUMNS)
     rows_per_class = math.ceil(n / columns)
     grid = figure.subplots(2 * rows_per_class, columns, squeeze=False)
@@ -330,7 +330,7 @@ def samples_figure(dataset, path, n=8, seed=None):
     counts = np.bincount(np.asarray(dataset.labels, dtype=np.int64), minlength=2)
     figure.suptitle(f"{counts[1]} vehicle and {counts[0]} non-vehicle crops: {n} random of each "
                     f"(seed {seed})", fontsize=12)
-    return _save_figure(figure, path)
+    return save_figure(figure, path)
 
 
 # -- viz hog ----------------------------------------------------------------
@@ -467,7 +467,7 @@ def hog_figure(image_bgr, options, path):
 
     width, height = hog_figure_size(image_bgr.shape, options)
     panel_w, panel_h = _hog_panel_px(image_bgr.shape, options)
-    figure = _new_figure(width, height)
+    figure = new_figure(width, height)
 
     def panel(index):
         # Exact pixel rectangles: fractions of a gridspec would let titles
@@ -494,7 +494,7 @@ def hog_figure(image_bgr, options, path):
                 f"{options.orientations} orientations, {ppc}-pixel cells; line length "
                 f"proportional to the bin, relative to each channel's 99th percentile{used}",
                 ha="center", va="top", fontsize=11)
-    return _save_figure(figure, path)
+    return save_figure(figure, path)
 
 
 # -- viz features -----------------------------------------------------------
@@ -537,7 +537,7 @@ def features_figure(image_bgr, model, path):
     groups = [(name, edges[i], edges[i + 1]) for i, name in enumerate(GROUP_NAMES)
               if edges[i + 1] > edges[i]]
 
-    figure = _new_figure(*FEATURES_FIGURE_SIZE)
+    figure = new_figure(*FEATURES_FIGURE_SIZE)
     total = features.size
     # Each group gets its own column, at least a quarter of the width: the 96
     # histogram bins would be a sliver on an axis shared with 5000 HOG values.
@@ -597,7 +597,7 @@ def features_figure(image_bgr, model, path):
         if column == 0:
             raw.set_ylabel("raw value")
             contribution.set_ylabel("contribution to the margin\n(green: towards vehicle)")
-    return _save_figure(figure, path)
+    return save_figure(figure, path)
 
 
 def _group_of(index, groups):
@@ -639,7 +639,7 @@ def windows_figure(frame_bgr, plans, path):
 
     check_output_path(path)
     width, height = windows_figure_size(frame_bgr.shape)
-    figure = _new_figure(width, height)
+    figure = new_figure(width, height)
     axes = figure.add_axes((0, 0, 1, 1))
     # Dimmed so the thin window outlines stand out against the road.
     axes.imshow(_rgb((frame_bgr * 0.6).astype(np.uint8)), interpolation="antialiased")
@@ -674,7 +674,7 @@ def windows_figure(frame_bgr, plans, path):
                       "(dashed: searched region; filled: one window)")
     axes.set_xlim(-0.5, frame_bgr.shape[1] - 0.5)
     axes.set_ylim(frame_bgr.shape[0] - 0.5, -0.5)
-    return _save_figure(figure, path)
+    return save_figure(figure, path)
 
 
 # -- viz detect -------------------------------------------------------------
@@ -763,7 +763,7 @@ def detect_figure(frame_bgr, detector, path, ground_truth=None):
     view_y0, view_y1 = detect_view_rows(frame.shape, plans)
     figure_w, figure_h = detect_figure_size(frame.shape, plans)
     panel_h = (figure_h - 8) // 4 - _DETECT_TITLE_PX
-    figure = _new_figure(figure_w, figure_h)
+    figure = new_figure(figure_w, figure_h)
 
     frame_panels = []
 
@@ -830,7 +830,7 @@ def detect_figure(frame_bgr, detector, path, ground_truth=None):
     for axes in frame_panels:
         axes.set_xlim(-0.5, width - 0.5)
         axes.set_ylim(view_y1 - 0.5, view_y0 - 0.5)
-    return _save_figure(figure, path)
+    return save_figure(figure, path)
 
 
 def _draw_ground_truth(axes, ground_truth):
@@ -891,7 +891,7 @@ def training_report_figure(model_report, test_scores, test_labels, path):
     false_pos = int(np.sum(~vehicle & predicted))
     true_neg = int(np.sum(~vehicle & ~predicted))
 
-    figure = _new_figure(*TRAINING_REPORT_SIZE)
+    figure = new_figure(*TRAINING_REPORT_SIZE)
     layout = figure.add_gridspec(1, 3, width_ratios=(1.5, 0.9, 1.3), left=0.05, right=0.99,
                                  bottom=0.12, top=0.9, wspace=0.25)
     axes = figure.add_subplot(layout[0])
@@ -943,7 +943,7 @@ def training_report_figure(model_report, test_scores, test_labels, path):
     axes.text(0.0, 1.0, "\n".join(lines), va="top", ha="left", family="monospace", fontsize=10,
               transform=axes.transAxes)
     axes.set_title("accuracy figures", fontsize=11, loc="left")
-    return _save_figure(figure, path)
+    return save_figure(figure, path)
 
 
 def _report_lines(report):
