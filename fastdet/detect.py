@@ -25,11 +25,11 @@ from .errors import InputError
 from .features import WINDOW, color_planes, histogram_bin_lut, hog_input
 from .kernels.blocks import normalize_blocks
 from .kernels.heat import accumulate_heat
-from .kernels.hog import cell_histograms
+from .kernels.hog import cell_histograms, phase_layout_shape
 from .kernels.label import (component_boxes, component_core_boxes, component_max,
                             label_components, split_component)
 from .kernels.colour import colour_maps
-from .kernels.score import (add_hog_scores, add_hog_scores_from_cells, add_spatial_scores,
+from .kernels.score import (add_hog_scores, add_hog_scores_from_phase_cells, add_spatial_scores,
                             add_tile_window_sums, window_count)
 from .model import Model, load_model
 
@@ -247,7 +247,7 @@ class Detector:
         callers get the arrays back filled, so the reuse is invisible.  The
         block map is only materialised on the multi-threaded path.
         """
-        buffers = self._workspace.get(plan.scaled_size)
+        buffers = self._workspace.get((plan.scaled_size, plan.step_cells))
         if buffers is None:
             o = self._options
             ppc, cpb, channels = o.pixels_per_cell, o.cells_per_block, self._hog_channels
@@ -256,8 +256,11 @@ class Detector:
             if self._parallel:
                 blocks = np.empty((cells_y - cpb + 1, cells_x - cpb + 1,
                                    channels * cpb * cpb * o.orientations), np.float32)
-            buffers = self._workspace[plan.scaled_size] = (
-                np.empty((cells_y, cells_x, channels, o.orientations), np.float32), blocks)
+                cells = np.empty((cells_y, cells_x, channels, o.orientations), np.float32)
+            else:
+                cells = np.empty(phase_layout_shape(cells_y, cells_x, channels, o.orientations,
+                                                    plan.step_cells, cpb), np.float32)
+            buffers = self._workspace[(plan.scaled_size, plan.step_cells)] = (cells, blocks)
         return buffers
 
     def prepare(self, frame):
@@ -306,20 +309,26 @@ class Detector:
         if options.use_hog:
             ppc, cpb = options.pixels_per_cell, options.cells_per_block
             cells_buffer, blocks_buffer = self._buffers(plan)
-            cells = cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
-                                    options.orientations, parallel=self._parallel,
-                                    out=cells_buffer)
-            t2 = time.perf_counter()
-            timings["cells"] += t2 - t1
+            hog_image = hog_input(converted, grey, options)
             if self._parallel:
+                cells = cell_histograms(hog_image, (ppc, ppc), options.orientations,
+                                        parallel=True, out=cells_buffer)
+                t2 = time.perf_counter()
                 blocks = normalize_blocks(cells, (cpb, cpb), options.block_norm, parallel=True,
                                           out=blocks_buffer)
                 add_hog_scores(blocks, self._hog_weights, plan.step_cells, scores, parallel=True)
             else:
-                # One thread: normalise each block row and score it at once,
-                # never writing the whole block map to memory.
-                add_hog_scores_from_cells(cells, (cpb, cpb), options.block_norm,
-                                          self._hog_weights, plan.step_cells, scores)
+                # One thread: cells in the phase layout of the window step, so
+                # each block row is normalised and scored along whole rows,
+                # never writing the block map to memory.
+                cells = cell_histograms(hog_image, (ppc, ppc), options.orientations,
+                                        out=cells_buffer, phase_step=plan.step_cells,
+                                        phase_pad=cpb)
+                t2 = time.perf_counter()
+                add_hog_scores_from_phase_cells(cells, plan.scaled_size[0] // ppc, (cpb, cpb),
+                                                options.block_norm, self._hog_weights,
+                                                plan.step_cells, scores)
+            timings["cells"] += t2 - t1
             t1 = time.perf_counter()
             timings["blocks_score"] += t1 - t2
         if options.spatial_size or options.hist_bins:

@@ -211,7 +211,7 @@ def orientation_lut(nbins):
 
 @njit(cache=True)
 def _histogram_cell_row_u8(image, cell_row, ppc_y, ppc_x, ncx, nbins, bin_lut, target, index,
-                           magnitude, acc, out):
+                           magnitude, acc, layout, out):
     """uint8 path for one cell row: gradient -> table index, then table -> histogram.
 
     A row is read as one flat run of ``W * C`` bytes, so the x-gradient of
@@ -251,11 +251,14 @@ def _histogram_cell_row_u8(image, cell_row, ppc_y, ppc_x, ncx, nbins, bin_lut, t
         for j in range(used):
             acc[uint64(target[j] + bin_lut[uint64(index[j])])] += magnitude[j]
     scale = np.float32(1.0 / (ppc_y * ppc_x))
-    for cx in range(ncx):
-        for c in range(channels):
-            base = (cx * channels + c) * slots
-            for b in range(nbins):
-                out[cell_row, cx, c, b] = acc[base + b] * scale
+    row_base = uint64(cell_row) * layout[0]
+    for cx in range(uint64(ncx)):
+        position = (cx % layout[4]) * layout[5] + cx // layout[4]
+        for c in range(c64):
+            base = (cx * c64 + c) * uint64(slots)
+            dest = row_base + position * layout[1] + c * layout[2]
+            for b in range(uint64(nbins)):
+                out[dest + b * layout[3]] = acc[base + b] * scale
 
 
 @njit(cache=True)
@@ -269,9 +272,8 @@ def _slot_targets(ncx, ppc_x, channels, nbins):
 
 
 @njit(cache=True)
-def _cell_rows_u8(image, first, stop, ppc_y, ppc_x, nbins, bin_lut, out):
+def _cell_rows_u8(image, first, stop, ppc_y, ppc_x, nbins, bin_lut, ncx, layout, out):
     """Cell rows ``first`` .. ``stop - 1`` with one set of scratch buffers."""
-    ncx = out.shape[1]
     channels = image.shape[2]
     target = _slot_targets(ncx, ppc_x, channels, nbins)
     index = np.empty(target.size, dtype=np.int32)
@@ -279,19 +281,84 @@ def _cell_rows_u8(image, first, stop, ppc_y, ppc_x, nbins, bin_lut, out):
     acc = np.empty(ncx * channels * (nbins + 1), dtype=np.float32)
     for cell_row in range(first, stop):
         _histogram_cell_row_u8(image, cell_row, ppc_y, ppc_x, ncx, nbins, bin_lut, target,
-                               index, magnitude, acc, out)
+                               index, magnitude, acc, layout, out)
 
 
 @njit(cache=True, parallel=True)
-def _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, out):
+def _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, rows, ncx, layout,
+                                 out):
     # One contiguous band of cell rows per thread keeps scratch set-up rare.
-    rows = out.shape[0]
     for band in prange(bands):
         _cell_rows_u8(image, band * rows // bands, (band + 1) * rows // bands, ppc_y, ppc_x,
-                      nbins, bin_lut, out)
+                      nbins, bin_lut, ncx, layout, out)
 
 
-def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, parallel=False, out=None):
+@njit(cache=True)
+def _standard_to_phase(cells, layout, out):
+    """Copy (Hc, Wc, C, nbins) cells into the flat phase layout ``layout``."""
+    rows, ncx, channels, nbins = cells.shape
+    for cy in range(uint64(rows)):
+        for cx in range(uint64(ncx)):
+            position = (cx % layout[4]) * layout[5] + cx // layout[4]
+            for c in range(uint64(channels)):
+                dest = cy * layout[0] + position * layout[1] + c * layout[2]
+                for b in range(uint64(nbins)):
+                    out[dest + b * layout[3]] = cells[cy, cx, c, b]
+
+
+def phase_layout_shape(cells_y, cells_x, channels, nbins, step, pad):
+    """Shape of the phase layout of a ``(cells_y, cells_x)`` cell grid.
+
+    In the phase layout, cell column ``cx`` sits at position
+    ``(cx % step) * K + cx // step`` (``K = ceil(cells_x / step)``) of the
+    last axis: the columns of each phase ``cx % step`` are contiguous, so
+    the blocks of windows stepped by ``step`` cells are too.  ``pad`` zero
+    positions follow, for kernels that read a few columns past a phase.
+
+    Returns
+    -------
+    tuple of int
+        ``(cells_y, channels, nbins, step * K + pad)``.
+    """
+    per_phase = -(-cells_x // step)
+    return (cells_y, channels, nbins, step * per_phase + pad)
+
+
+def to_phase_layout(cells, step, pad=0):
+    """Copy ``(Hc, Wc, C, nbins)`` cells into the phase layout for ``step``.
+
+    Returns
+    -------
+    ndarray of float32, shape ``phase_layout_shape(Hc, Wc, C, nbins, step, pad)``
+    """
+    rows, cells_x, channels, nbins = cells.shape
+    phase = np.zeros(phase_layout_shape(rows, cells_x, channels, nbins, step, pad), np.float32)
+    if phase.size and cells.size:
+        _standard_to_phase(np.ascontiguousarray(cells, dtype=np.float32),
+                           _layout(phase.shape, step, cells_x), phase.reshape(-1))
+    return phase
+
+
+def _layout(shape, phase_step=None, cells_x=None):
+    """Flat-index strides of a cell array: (row, position, channel, bin, step, K).
+
+    Cell ``(cy, cx, c, b)`` lives at ``cy * row + pos(cx) * position +
+    c * channel + b * bin`` with ``pos(cx) = (cx % step) * K + cx // step``.
+    ``shape`` is ``(Hc, Wc, C, nbins)``, or the phase layout's shape when
+    ``phase_step`` is given (then ``cells_x`` is the grid's ``Wc``).
+    """
+    if phase_step is None:
+        rows, ncx, channels, nbins = shape
+        strides = (ncx * channels * nbins, channels * nbins, nbins, 1, 1, ncx)
+    else:
+        rows, channels, nbins, length = shape
+        strides = (channels * nbins * length, 1, nbins * length, length, phase_step,
+                   -(-cells_x // phase_step))
+    return np.array(strides, dtype=np.uint64)
+
+
+def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, parallel=False, out=None,
+                    phase_step=None, phase_pad=0):
     """Per-cell histograms of unsigned gradient orientation.
 
     Parameters
@@ -312,26 +379,53 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
         Spread cell rows over Numba's threads.
     out : ndarray of float32, optional
         Array of the output's shape to fill (saves an allocation per call).
+    phase_step : int, optional
+        Return the cells in the phase layout of :func:`phase_layout_shape`
+        for windows stepped by this many cells (what
+        :func:`fastdet.kernels.score.add_hog_scores_from_phase_cells` reads)
+        instead of ``(Hc, Wc, C, nbins)``.
+    phase_pad : int
+        Zero positions after the last phase (phase layout only).
 
     Returns
     -------
     ndarray of float32, shape (H // ppc_y, W // ppc_x, C_out, nbins)
-        Mean gradient magnitude per orientation bin of each cell.
+        Mean gradient magnitude per orientation bin of each cell (or the
+        phase layout of the same values).
     """
     ppc_y, ppc_x = int(pixels_per_cell[0]), int(pixels_per_cell[1])
     height, width, channels = image.shape
     out_channels = 1 if merge_channels else channels
-    shape = (height // ppc_y, width // ppc_x, out_channels, nbins)
+    cells_y, cells_x = height // ppc_y, width // ppc_x
+    shape = (cells_y, cells_x, out_channels, nbins)
+    if phase_step is not None:
+        if int(phase_step) < 1 or int(phase_pad) < 0:
+            raise ValueError(f"phase_step must be >= 1 and phase_pad >= 0, "
+                             f"got {phase_step!r}, {phase_pad!r}")
+        phase_step = int(phase_step)
+        phase_shape = phase_layout_shape(cells_y, cells_x, out_channels, nbins, phase_step,
+                                         int(phase_pad))
+        if not (image.dtype == np.uint8 and not merge_channels):
+            phase = to_phase_layout(cell_histograms(image, pixels_per_cell, nbins,
+                                                    merge_channels, parallel),
+                                    phase_step, int(phase_pad))
+            if out is None:
+                return phase
+            _output(out, phase_shape)[...] = phase
+            return out
+        out = _output(out, phase_shape)
+        # Positions no cell maps to (short phases, padding) stay zero.
+        out[...] = 0.0
+        if out.size:
+            _u8_cells(image, ppc_y, ppc_x, nbins, parallel, cells_y, cells_x,
+                      _layout(phase_shape, phase_step, cells_x), out.reshape(-1))
+        return out
     out = _output(out, shape)
     if out.size == 0:
         return out
     if image.dtype == np.uint8 and not merge_channels:
-        bin_lut = _bin_lut(nbins)
-        if parallel:
-            bands = min(numba.get_num_threads(), out.shape[0])
-            _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, out)
-        else:
-            _cell_rows_u8(image, 0, out.shape[0], ppc_y, ppc_x, nbins, bin_lut, out)
+        _u8_cells(image, ppc_y, ppc_x, nbins, parallel, cells_y, cells_x, _layout(shape),
+                  out.reshape(-1))
         return out
     cos_sin, bounds = _tables(nbins)
     kernel = _cell_histograms_parallel if parallel else _cell_histograms_serial
@@ -341,6 +435,17 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
     kernel(np.asarray(image, dtype=np.float32), ppc_y, ppc_x, nbins, merge_mode,
            cos_sin, bounds, out)
     return out
+
+
+def _u8_cells(image, ppc_y, ppc_x, nbins, parallel, cells_y, cells_x, layout, out_flat):
+    bin_lut = _bin_lut(nbins)
+    if parallel:
+        bands = min(numba.get_num_threads(), cells_y)
+        _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, cells_y,
+                                     cells_x, layout, out_flat)
+    else:
+        _cell_rows_u8(image, 0, cells_y, ppc_y, ppc_x, nbins, bin_lut, cells_x, layout,
+                      out_flat)
 
 
 @functools.lru_cache(maxsize=None)

@@ -19,7 +19,8 @@ of the scale's image (``step_px`` = cells per step x pixels per cell).
 import numpy as np
 from numba import njit, prange, uint64
 
-from .blocks import EPS, NORM_CODES, _normalize_block_row, cell_energy
+from .blocks import EPS, NORM_CODES
+from .hog import to_phase_layout
 
 # Reassociation lets LLVM vectorise the dot products; sums then differ from
 # strict left-to-right order only at float32 rounding level.
@@ -90,32 +91,14 @@ def add_hog_scores(blocks, weights, step_cells, out, parallel=False):
     kernel(image2d, weights2d, step_cells, step_cells * length, out)
 
 
-@njit(cache=True)
-def _add_hog_scores_fused(cells, energy, cpb_y, cpb_x, norm_code, eps, weights2d, step, out):
-    n = weights2d.shape[0]
-    block_len = cells.shape[2] * cpb_y * cpb_x * cells.shape[3]
-    row = np.empty((cells.shape[1] - cpb_x + 1) * block_len, dtype=np.float32)
-    rows_out, cols_out = out.shape
-    weights_flat = weights2d.reshape(weights2d.size)
-    for by in range((rows_out - 1) * step + n):
-        _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, row)
-        # Window rows iy whose n block rows include ``by``.
-        first = max(0, (by - n + step) // step)
-        last = min(rows_out - 1, by // step)
-        for iy in range(first, last + 1):
-            r = by - iy * step
-            for ix in range(cols_out):
-                out[iy, ix] += _dot_rows(row, row.size, 0, ix * step * block_len,
-                                         weights_flat[r * n * block_len:], 1, n * block_len)
-
-
 def add_hog_scores_from_cells(cells, cells_per_block, norm, weights, step_cells, out, eps=EPS):
     """Normalise blocks and add every window's HOG score in one pass.
 
     Equivalent to :func:`fastdet.kernels.blocks.normalize_blocks` followed by
-    :func:`add_hog_scores`, but each block row is normalised into a small
-    scratch row and immediately dotted with the windows that contain it, so
-    the block map (several megabytes per frame) is never written to memory.
+    :func:`add_hog_scores`, without writing the block map: the cells are
+    copied into the phase layout and scored by
+    :func:`add_hog_scores_from_phase_cells` (the detector computes that
+    layout directly).
 
     Parameters
     ----------
@@ -128,18 +111,203 @@ def add_hog_scores_from_cells(cells, cells_per_block, norm, weights, step_cells,
     out : ndarray of float32, shape (Ny, Nx)
     eps : float
     """
+    phase = to_phase_layout(cells, step_cells, int(cells_per_block[1]))
+    add_hog_scores_from_phase_cells(phase, cells.shape[1], cells_per_block, norm, weights,
+                                    step_cells, out, eps)
+
+
+@njit(cache=True, fastmath=_FASTMATH)
+def _phase_energy(cells_flat, base, nbins, length, norm_code, energy, e_base):
+    """energy[e_base + i] = sum over bins of |v| (L1 norms) or v**2 (L2 norms)."""
+    for i in range(uint64(length)):
+        energy[e_base + i] = 0.0
+    for b in range(uint64(nbins)):
+        row = base + b * uint64(length)
+        if norm_code <= 1:
+            for i in range(uint64(length)):
+                energy[e_base + i] += abs(cells_flat[row + i])
+        else:
+            for i in range(uint64(length)):
+                v = cells_flat[row + i]
+                energy[e_base + i] += v * v
+
+
+@njit(cache=True, fastmath=_FASTMATH)
+def _add_run(src, s0, dst, d0, count):
+    for i in range(uint64(count)):
+        dst[d0 + i] += src[s0 + i]
+
+
+@njit(cache=True, fastmath=_FASTMATH)
+def _inverse_norm(total, count, norm_code, eps, inv):
+    eps32 = np.float32(eps)
+    eps_sq = np.float32(eps * eps)
+    for i in range(uint64(count)):
+        if norm_code <= 1:
+            inv[i] = np.float32(1.0) / (total[i] + eps32)
+        else:
+            inv[i] = np.float32(1.0) / np.sqrt(total[i] + eps_sq)
+
+
+@njit(cache=True, fastmath=_FASTMATH)
+def _scale_run(src, s0, inv, i0, count, norm_code, dst, d0, sum_sq):
+    """dst = src * inv (then sqrt for L1-sqrt, clip + sum of squares for L2-Hys)."""
+    clip = np.float32(0.2)
+    for i in range(uint64(count)):
+        v = src[s0 + i] * inv[i0 + i]
+        if norm_code == 1:
+            v = np.sqrt(v)
+        elif norm_code == 3:
+            v = min(v, clip)
+            sum_sq[i0 + i] += v * v
+        dst[d0 + i] = v
+
+
+@njit(cache=True, fastmath=_FASTMATH)
+def _scale(dst, d0, inv, count):
+    for i in range(uint64(count)):
+        dst[d0 + i] *= inv[i]
+
+
+@njit(cache=True, fastmath=_FASTMATH)
+def _axpy(weight, src, s0, count, dst, d0):
+    for i in range(uint64(count)):
+        dst[d0 + i] += weight * src[s0 + i]
+
+
+@njit(cache=True)
+def _shift_runs(dx, step, per_phase):
+    """Runs ``(dest, src, count)`` mapping block positions to their cell ``bx + dx``.
+
+    Phases whose cell ``bx + dx`` wraps into the same later phase index form
+    one contiguous run in both layouts, so there are at most a few runs.
+    """
+    runs = np.empty((step, 3), dtype=np.uint64)
+    n = 0
+    p = 0
+    while p < step:
+        wrap = (p + dx) // step
+        p_end = min(step, (wrap + 1) * step - dx)
+        q = p + dx - wrap * step
+        runs[n, 0] = p * per_phase
+        runs[n, 1] = q * per_phase + wrap
+        runs[n, 2] = (p_end - p) * per_phase
+        n += 1
+        p = p_end
+    return runs[:n]
+
+
+@njit(cache=True)
+def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weights, step, out):
+    rows, channels, nbins, length = cells.shape
+    n = weights.shape[0]
+    n_features = weights.shape[2]
+    positions = uint64(step * per_phase)
+    cells_flat = cells.reshape(cells.size)
+    weights_flat = weights.reshape(weights.size)
+    out_flat = out.reshape(out.size)
+    rows_out, cols_out = out.shape
+    used_rows = (rows_out - 1) * step + n
+    # Per cell: the sum a block norm is built from.
+    energy = np.empty(rows * channels * length, dtype=np.float32)
+    for cy in range(rows):
+        for c in range(channels):
+            base = uint64((cy * channels + c) * nbins * length)
+            _phase_energy(cells_flat, base, nbins, length, norm_code, energy,
+                          uint64((cy * channels + c) * length))
+    runs = [_shift_runs(dx, step, per_phase) for dx in range(cpb_x)]
+    per_channel = cpb_y * cpb_x * nbins
+    normalised = np.empty(n_features * positions, dtype=np.float32)
+    total = np.empty(positions, dtype=np.float32)
+    inv = np.empty(positions, dtype=np.float32)
+    sum_sq = np.empty(positions, dtype=np.float32)
+    partial = np.empty(cols_out, dtype=np.float32)
+    for by in range(used_rows):
+        for c in range(channels):
+            total[:] = 0.0
+            for dy in range(cpb_y):
+                e_base = uint64(((by + dy) * channels + c) * length)
+                for dx in range(cpb_x):
+                    for k in range(runs[dx].shape[0]):
+                        _add_run(energy, e_base + runs[dx][k, 1], total, runs[dx][k, 0],
+                                 runs[dx][k, 2])
+            _inverse_norm(total, positions, norm_code, eps, inv)
+            sum_sq[:] = 0.0
+            f = uint64(c * per_channel)
+            for dy in range(cpb_y):
+                c_base = uint64(((by + dy) * channels + c) * nbins * length)
+                for dx in range(cpb_x):
+                    for b in range(nbins):
+                        row = c_base + uint64(b * length)
+                        for k in range(runs[dx].shape[0]):
+                            _scale_run(cells_flat, row + runs[dx][k, 1], inv, runs[dx][k, 0],
+                                       runs[dx][k, 2], norm_code, normalised,
+                                       f * positions + runs[dx][k, 0], sum_sq)
+                        f += uint64(1)
+            if norm_code == 3:
+                _inverse_norm(sum_sq, positions, 2, eps, inv)
+                for f in range(uint64(c * per_channel), uint64((c + 1) * per_channel)):
+                    _scale(normalised, f * positions, inv, positions)
+        # Window rows iy whose n block rows include ``by``.
+        first = max(0, (by - n + step) // step)
+        last = min(rows_out - 1, by // step)
+        for iy in range(first, last + 1):
+            r = by - iy * step
+            for s in range(n):
+                offset = uint64((s % step) * per_phase + s // step)
+                w_base = uint64((r * n + s) * n_features)
+                # One block's dot products first, then into the scores: two
+                # short sums keep float32 rounding near the per-window dot's.
+                partial[:] = 0.0
+                for f in range(uint64(n_features)):
+                    _axpy(weights_flat[w_base + f], normalised, f * positions + offset,
+                          cols_out, partial, uint64(0))
+                _add_run(partial, uint64(0), out_flat, uint64(iy * cols_out), cols_out)
+
+
+def add_hog_scores_from_phase_cells(cells, cells_x, cells_per_block, norm, weights, step_cells,
+                                    out, eps=EPS):
+    """Normalise blocks and add every window's HOG score, one block row at a time.
+
+    Equivalent to :func:`fastdet.kernels.blocks.normalize_blocks` followed by
+    :func:`add_hog_scores`, but the block map is never written to memory and
+    every loop runs along a whole row of blocks (vectorised).  The cells come
+    in the phase layout of :func:`fastdet.kernels.hog.phase_layout_shape` for
+    ``step_cells``: the blocks a row of windows reads at any offset are then
+    contiguous.
+
+    Parameters
+    ----------
+    cells : ndarray of float32, shape (Hc, C, nbins, L)
+        Phase-layout cells, with at least ``cells_per_block[1]`` padding.
+    cells_x : int
+        Cell columns ``Wc`` of the grid.
+    cells_per_block : tuple of int
+    norm : str
+        Block norm, as in :func:`~fastdet.kernels.blocks.normalize_blocks`.
+    weights : ndarray of float32, shape (n, n, F)
+        HOG weights of one window, blocks ordered (channel, cell_y, cell_x, bin).
+    step_cells : int
+    out : ndarray of float32, shape (Ny, Nx)
+        Score grid, added to in place.
+    eps : float
+    """
     cpb_y, cpb_x = int(cells_per_block[0]), int(cells_per_block[1])
     n, _, length = weights.shape
-    if length != cells.shape[2] * cpb_y * cpb_x * cells.shape[3]:
+    rows, channels, nbins, positions = cells.shape
+    if length != channels * cpb_y * cpb_x * nbins:
         raise ValueError(f"weights have {length} features per block, cells give "
-                         f"{cells.shape[2] * cpb_y * cpb_x * cells.shape[3]}")
-    blocks_shape = (cells.shape[0] - cpb_y + 1, cells.shape[1] - cpb_x + 1)
+                         f"{channels * cpb_y * cpb_x * nbins}")
+    per_phase = -(-int(cells_x) // step_cells)
+    if positions < step_cells * per_phase + cpb_x:
+        raise ValueError(f"phase-layout cells need {step_cells * per_phase + cpb_x} positions "
+                         f"for {cells_x} columns stepped by {step_cells}, got {positions}")
+    blocks_shape = (rows - cpb_y + 1, cells_x - cpb_x + 1)
     _check_fits(out, blocks_shape, (n, n), step_cells)
     if out.size == 0:
         return
-    norm_code = NORM_CODES[norm]
-    _add_hog_scores_fused(cells, cell_energy(cells, norm_code), cpb_y, cpb_x, norm_code,
-                          float(eps), weights.reshape(n, n * length), step_cells, out)
+    _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, NORM_CODES[norm], float(eps),
+                          weights, int(step_cells), out)
 
 
 def add_spatial_scores(spatial, weights, step_px, out, parallel=False):
