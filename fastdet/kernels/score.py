@@ -150,17 +150,30 @@ def _inverse_norm(total, count, norm_code, eps, inv):
 
 
 @njit(cache=True, fastmath=_FASTMATH)
-def _scale_run(src, s0, inv, i0, count, norm_code, dst, d0, sum_sq):
-    """dst = src * inv (then sqrt for L1-sqrt, clip + sum of squares for L2-Hys)."""
+def _scale_run(src, s0, inv, i0, count, dst, d0):
+    """dst = src * inv (L1 and L2)."""
+    for i in range(uint64(count)):
+        dst[d0 + i] = src[s0 + i] * inv[i0 + i]
+
+
+@njit(cache=True, fastmath=_FASTMATH)
+def _scale_sqrt_run(src, s0, inv, i0, count, dst, d0):
+    """dst = sqrt(src * inv) (L1-sqrt)."""
+    for i in range(uint64(count)):
+        dst[d0 + i] = np.sqrt(src[s0 + i] * inv[i0 + i])
+
+
+@njit(cache=True, fastmath=_FASTMATH)
+def _scale_clip_run(src, s0, inv, i0, count, dst, d0, sum_sq):
+    """dst = min(src * inv, 0.2), and its squares added to sum_sq (L2-Hys)."""
     clip = np.float32(0.2)
     for i in range(uint64(count)):
-        v = src[s0 + i] * inv[i0 + i]
-        if norm_code == 1:
-            v = np.sqrt(v)
-        elif norm_code == 3:
-            v = min(v, clip)
-            sum_sq[i0 + i] += v * v
+        v = min(src[s0 + i] * inv[i0 + i], clip)
         dst[d0 + i] = v
+    # A separate pass: one store stream per loop vectorises best.
+    for i in range(uint64(count)):
+        v = dst[d0 + i]
+        sum_sq[i0 + i] += v * v
 
 
 @njit(cache=True, fastmath=_FASTMATH)
@@ -240,9 +253,18 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
                     for b in range(nbins):
                         row = c_base + uint64(b * length)
                         for k in range(runs[dx].shape[0]):
-                            _scale_run(cells_flat, row + runs[dx][k, 1], inv, runs[dx][k, 0],
-                                       runs[dx][k, 2], norm_code, normalised,
-                                       f * positions + runs[dx][k, 0], sum_sq)
+                            src = row + runs[dx][k, 1]
+                            start = runs[dx][k, 0]
+                            count = runs[dx][k, 2]
+                            dest = f * positions + start
+                            if norm_code == 3:
+                                _scale_clip_run(cells_flat, src, inv, start, count, normalised,
+                                                dest, sum_sq)
+                            elif norm_code == 1:
+                                _scale_sqrt_run(cells_flat, src, inv, start, count, normalised,
+                                                dest)
+                            else:
+                                _scale_run(cells_flat, src, inv, start, count, normalised, dest)
                         f += uint64(1)
             if norm_code == 3:
                 _inverse_norm(sum_sq, positions, 2, eps, inv)
