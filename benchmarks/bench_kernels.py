@@ -17,7 +17,7 @@ from fastdet.kernels.blocks import normalize_blocks
 from fastdet.kernels.heat import accumulate_heat
 from fastdet.kernels.hog import cell_histograms
 from fastdet.kernels.label import component_boxes, label_components
-from fastdet.kernels.score import add_hog_scores, add_hog_scores_from_cells, window_count
+from fastdet.kernels.score import add_hog_scores, add_hog_scores_from_phase_cells, window_count
 
 from ._common import SIZES, test_frame
 
@@ -69,8 +69,9 @@ class BlockNormalisation:
 class WindowScoring:
     """HOG part of every 64x64 window's SVM score, step 4 cells.
 
-    ``fused`` is detection's one-thread path (normalise a block row and score
-    it at once); ``from_blocks`` scores a ready block map (the multi-thread
+    ``fused`` is detection's one-thread path (cells in the phase layout of the
+    step, each block row normalised and scored at once, never writing the
+    block map); ``from_blocks`` scores a ready block map (the multi-thread
     path, here on one thread).
     """
 
@@ -78,7 +79,10 @@ class WindowScoring:
     param_names = ("frame_size",)
 
     def setup(self, label):
-        self.cells = cell_histograms(hls_image(label), PIXELS_PER_CELL, ORIENTATIONS)
+        image = hls_image(label)
+        self.cells = cell_histograms(image, PIXELS_PER_CELL, ORIENTATIONS)
+        self.phase_cells = cell_histograms(image, PIXELS_PER_CELL, ORIENTATIONS,
+                                           phase_step=STEP_CELLS, phase_pad=CELLS_PER_BLOCK[1])
         self.blocks = normalize_blocks(self.cells, CELLS_PER_BLOCK, NORM)
         rng = np.random.default_rng(0)
         self.weights = rng.standard_normal(
@@ -90,8 +94,8 @@ class WindowScoring:
         self.time_from_blocks(label)
 
     def time_fused(self, label):
-        add_hog_scores_from_cells(self.cells, CELLS_PER_BLOCK, NORM, self.weights, STEP_CELLS,
-                                  self.scores)
+        add_hog_scores_from_phase_cells(self.phase_cells, self.cells.shape[1], CELLS_PER_BLOCK,
+                                        NORM, self.weights, STEP_CELLS, self.scores)
 
     def time_from_blocks(self, label):
         add_hog_scores(self.blocks, self.weights, STEP_CELLS, self.scores)
