@@ -177,9 +177,10 @@ def _scale_clip_run(src, s0, inv, i0, count, dst, d0, sum_sq):
 
 
 @njit(cache=True, fastmath=_FASTMATH)
-def _scale(dst, d0, inv, count):
+def _add_scaled_run(src, scale, s0, dst, d0, count):
+    """dst += src * scale[s0:] (src and dst from 0 and d0)."""
     for i in range(uint64(count)):
-        dst[d0 + i] *= inv[i]
+        dst[d0 + i] += src[i] * scale[s0 + i]
 
 
 @njit(cache=True, fastmath=_FASTMATH)
@@ -235,6 +236,7 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
     inv = np.empty(positions, dtype=np.float32)
     sum_sq = np.empty(positions, dtype=np.float32)
     partial = np.empty(cols_out, dtype=np.float32)
+    second = np.empty(channels * positions, dtype=np.float32)
     for by in range(used_rows):
         for c in range(channels):
             total[:] = 0.0
@@ -267,9 +269,9 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
                                 _scale_run(cells_flat, src, inv, start, count, normalised, dest)
                         f += uint64(1)
             if norm_code == 3:
-                _inverse_norm(sum_sq, positions, 2, eps, inv)
-                for f in range(uint64(c * per_channel), uint64((c + 1) * per_channel)):
-                    _scale(normalised, f * positions, inv, positions)
+                # L2-Hys's second normalisation is applied to the blocks' dot
+                # products instead of to every clipped value.
+                _inverse_norm(sum_sq, positions, 2, eps, second[c * positions:])
         # Window rows iy whose n block rows include ``by``.
         first = max(0, (by - n + step) // step)
         last = min(rows_out - 1, by // step)
@@ -278,13 +280,18 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
             for s in range(n):
                 offset = uint64((s % step) * per_phase + s // step)
                 w_base = uint64((r * n + s) * n_features)
-                # One block's dot products first, then into the scores: two
-                # short sums keep float32 rounding near the per-window dot's.
-                partial[:] = 0.0
-                for f in range(uint64(n_features)):
-                    _axpy(weights_flat[w_base + f], normalised, f * positions + offset,
-                          cols_out, partial, uint64(0))
-                _add_run(partial, uint64(0), out_flat, uint64(iy * cols_out), cols_out)
+                # One block channel's dot products first, then into the
+                # scores: short sums keep float32 rounding near a plain dot's.
+                for c in range(channels):
+                    partial[:] = 0.0
+                    for f in range(uint64(c * per_channel), uint64((c + 1) * per_channel)):
+                        _axpy(weights_flat[w_base + f], normalised, f * positions + offset,
+                              cols_out, partial, uint64(0))
+                    if norm_code == 3:
+                        _add_scaled_run(partial, second, uint64(c) * positions + offset,
+                                        out_flat, uint64(iy * cols_out), cols_out)
+                    else:
+                        _add_run(partial, uint64(0), out_flat, uint64(iy * cols_out), cols_out)
 
 
 def add_hog_scores_from_phase_cells(cells, cells_x, cells_per_block, norm, weights, step_cells,
