@@ -10,9 +10,19 @@ Ground truth comes from an annotation file::
     {"images": {"test1.jpg": [{"box": [x1, y1, x2, y2], "label": "car",
                                "difficult": false}, ...], ...}}
 
-Boxes marked ``difficult`` (far away, heavily occluded, ...) follow the
-PASCAL-VOC rule: a detection on one is neither rewarded nor penalised, and
-missing one is not an error.
+Boxes marked ``difficult`` (far away, heavily occluded, ...) are neither
+required nor penalised: missing one is not an error, and a detection on one
+is ignored (neither a true nor a false positive).  "On one" is the PASCAL-VOC
+rule -- IoU >= the match threshold with the difficult box -- extended by a
+coverage rule: a detection that matches no vehicle but has at least
+``difficult_cover`` (default half) of its own area inside one difficult box
+is ignored too.  VOC alone calls a loose or partial box on a difficult car
+(a distant truck's box that also takes in the barrier below it) a false
+positive, i.e. penalises the detector for a car it was told it need not
+find; the coverage rule (the "ignore region" convention of COCO crowd boxes
+and the Caltech pedestrian benchmark) does not, while a detection that lies
+mostly on background stays a false positive.  ``difficult_cover=None`` gives
+the plain VOC rule.
 
 Typical use::
 
@@ -39,6 +49,9 @@ TRUE_POSITIVE = 1
 FALSE_POSITIVE = 0
 #: Label of a prediction whose best match is a difficult ground-truth box.
 IGNORED = -1
+#: Default share of a detection's area that must lie inside a difficult box
+#: for the detection to be ignored when it matches nothing (see module doc).
+DIFFICULT_COVER = 0.5
 
 
 def iou_matrix(boxes_a, boxes_b):
@@ -71,6 +84,27 @@ def iou_matrix(boxes_a, boxes_b):
     iou = np.zeros_like(intersection)
     np.divide(intersection, union, out=iou, where=union > 0)
     return iou
+
+
+def cover_matrix(boxes_a, boxes_b):
+    """Share of each box of ``boxes_a`` lying inside each box of ``boxes_b``.
+
+    Returns
+    -------
+    ndarray of float64, shape (N, M)
+        ``intersection(a_i, b_j) / area(a_i)``; 0 where ``a_i`` has no area.
+    """
+    boxes_a = _as_box_array(boxes_a, "boxes_a")
+    boxes_b = _as_box_array(boxes_b, "boxes_b")
+    overlap_w = (np.minimum(boxes_a[:, None, 2], boxes_b[None, :, 2])
+                 - np.maximum(boxes_a[:, None, 0], boxes_b[None, :, 0]))
+    overlap_h = (np.minimum(boxes_a[:, None, 3], boxes_b[None, :, 3])
+                 - np.maximum(boxes_a[:, None, 1], boxes_b[None, :, 1]))
+    intersection = np.clip(overlap_w, 0, None) * np.clip(overlap_h, 0, None)
+    area = _box_areas(boxes_a)[:, None]
+    cover = np.zeros_like(intersection)
+    np.divide(intersection, area, out=cover, where=area > 0)
+    return cover
 
 
 def _as_box_array(boxes, name):
@@ -228,7 +262,8 @@ class ImageMatch:
         return int(np.count_nonzero(self.labels == IGNORED))
 
 
-def match_image(pred_boxes, pred_scores, gt_boxes, gt_difficult=None, iou_threshold=0.5):
+def match_image(pred_boxes, pred_scores, gt_boxes, gt_difficult=None, iou_threshold=0.5,
+                difficult_cover=DIFFICULT_COVER):
     """Match one image's predictions to its ground truth, PASCAL-VOC style.
 
     Predictions are visited in descending score order (ties keep their given
@@ -240,6 +275,12 @@ def match_image(pred_boxes, pred_scores, gt_boxes, gt_difficult=None, iou_thresh
     when it is difficult; otherwise it is a false positive.  So a second
     detection of an already found vehicle is a false positive.  On equal
     IoU a non-difficult box is preferred, then the lower index.
+
+    Then the coverage rule: a prediction left a false positive is ignored
+    instead when at least ``difficult_cover`` of its area lies inside one
+    difficult box (it is then matched to the difficult box covering most of
+    it).  True positives are decided first, so a detection that finds a
+    normal vehicle is never ignored.
 
     Parameters
     ----------
@@ -253,6 +294,9 @@ def match_image(pred_boxes, pred_scores, gt_boxes, gt_difficult=None, iou_thresh
         Which ground-truth boxes are difficult; none by default.
     iou_threshold : float
         Minimum IoU (inclusive) for a match.
+    difficult_cover : float or None
+        Share of its own area (inclusive) a non-matching prediction must have
+        inside a difficult box to be ignored; ``None`` for the plain VOC rule.
 
     Returns
     -------
@@ -293,6 +337,14 @@ def match_image(pred_boxes, pred_scores, gt_boxes, gt_difficult=None, iou_thresh
         else:
             labels[p] = TRUE_POSITIVE
             gt_found[best] = True
+    if difficult_cover is not None and n_pred and gt_difficult.any():
+        hard = np.flatnonzero(gt_difficult)
+        cover = cover_matrix(pred_boxes, gt_boxes[hard])
+        best_hard = hard[np.argmax(cover, axis=1)]
+        ignore = (labels == FALSE_POSITIVE) & (cover.max(axis=1) >= difficult_cover)
+        labels[ignore] = IGNORED
+        matched_gt[ignore] = best_hard[ignore]
+        matched_iou[ignore] = iou[ignore, best_hard[ignore]]
     return ImageMatch(labels=labels, scores=pred_scores, ious=matched_iou, matched_gt=matched_gt,
                       n_positives=int(np.count_nonzero(~gt_difficult)), gt_found=gt_found)
 
@@ -363,6 +415,8 @@ class EvalReport:
     ignored : int
         Predictions matched to difficult boxes (counted nowhere else).
     iou_threshold : float
+    difficult_cover : float or None
+        The coverage rule used for difficult boxes (``None``: plain VOC).
     per_image : dict of str to ImageMatch
 
     Notes
@@ -386,6 +440,7 @@ class EvalReport:
     n_gt: int
     ignored: int
     iou_threshold: float
+    difficult_cover: float | None = DIFFICULT_COVER
     per_image: dict = field(default_factory=dict, repr=False)
 
     def to_dict(self, per_image=True):
@@ -402,7 +457,7 @@ class EvalReport:
         """
         summary = {name: getattr(self, name) for name in
                    ("precision", "recall", "ap", "mean_iou", "tp", "fp", "fn", "n_gt",
-                    "ignored", "iou_threshold")}
+                    "ignored", "iou_threshold", "difficult_cover")}
         if per_image:
             summary["images"] = {name: {"tp": match.tp, "fp": match.fp, "fn": match.fn,
                                         "ignored": match.ignored}
@@ -410,7 +465,7 @@ class EvalReport:
         return summary
 
 
-def evaluate(results, annotations, iou_threshold=0.5):
+def evaluate(results, annotations, iou_threshold=0.5, difficult_cover=DIFFICULT_COVER):
     """Match predictions to ground truth on every image and pool the metrics.
 
     Parameters
@@ -426,6 +481,9 @@ def evaluate(results, annotations, iou_threshold=0.5):
         :func:`load_annotations`.
     iou_threshold : float
         Minimum IoU (inclusive) for a prediction to match a box.
+    difficult_cover : float or None
+        Coverage rule for difficult boxes (see :func:`match_image`); ``None``
+        for the plain VOC rule.
 
     Returns
     -------
@@ -447,7 +505,8 @@ def evaluate(results, annotations, iou_threshold=0.5):
     for image_name, objects in annotations.items():
         boxes, scores = _boxes_and_scores(results.get(image_name))
         gt_boxes, gt_difficult = ground_truth_arrays(objects)
-        per_image[image_name] = match_image(boxes, scores, gt_boxes, gt_difficult, iou_threshold)
+        per_image[image_name] = match_image(boxes, scores, gt_boxes, gt_difficult, iou_threshold,
+                                            difficult_cover)
 
     matches = list(per_image.values())
     labels = np.concatenate([m.labels for m in matches] or [np.zeros(0, np.int8)])
@@ -464,6 +523,7 @@ def evaluate(results, annotations, iou_threshold=0.5):
         tp=tp, fp=fp, fn=n_gt - tp, n_gt=n_gt,
         ignored=int(np.count_nonzero(labels == IGNORED)),
         iou_threshold=float(iou_threshold),
+        difficult_cover=None if difficult_cover is None else float(difficult_cover),
         per_image=per_image,
     )
 

@@ -9,8 +9,9 @@ import pytest
 
 from fastdet.detections import Detections
 from fastdet.errors import InputError
-from fastdet.evaluate import (FALSE_POSITIVE, IGNORED, TRUE_POSITIVE, average_precision,
-                              evaluate, iou_matrix, load_annotations, match_image)
+from fastdet.evaluate import (DIFFICULT_COVER, FALSE_POSITIVE, IGNORED, TRUE_POSITIVE,
+                              average_precision, cover_matrix, evaluate, iou_matrix,
+                              load_annotations, match_image)
 
 TP, FP, IGN = TRUE_POSITIVE, FALSE_POSITIVE, IGNORED
 
@@ -94,6 +95,70 @@ def test_best_overlap_decides_between_difficult_and_normal_boxes():
     match = match_image([[0, 0, 10, 10], [4, 0, 14, 10]], [0.9, 0.1], gt, [True, False])
     np.testing.assert_array_equal(match.labels, [IGN, TP])
     np.testing.assert_array_equal(match.matched_gt, [0, 1])
+
+
+def test_a_box_mostly_inside_a_difficult_box_is_ignored():
+    # IoU 40 / 100 = 0.4 < 0.5, but the whole 4x10 detection lies inside the difficult box.
+    match = match_image([[0, 0, 4, 10]], [0.9], [[0, 0, 10, 10]], [True])
+    assert match.labels.tolist() == [IGN]
+    assert match.matched_gt.tolist() == [0]
+    assert match.ious[0] == pytest.approx(0.4)
+    assert (match.tp, match.fp, match.ignored) == (0, 0, 1)
+
+
+def test_coverage_rule_threshold_is_inclusive_and_needs_one_box():
+    gt, difficult = [[0, 0, 10, 10], [10, 0, 20, 10]], [True, True]
+    # Exactly half of a 20x10 box inside the first difficult box: ignored.
+    assert match_image([[0, 0, 20, 10]], [1.0], [[0, 0, 10, 10]], [True]).labels.tolist() \
+        == [IGN]
+    # 40 % inside each of two difficult boxes: no single box holds half of it.
+    match = match_image([[2, 0, 27, 10]], [1.0], gt + [[50, 50, 60, 60]], difficult + [False])
+    assert match.labels.tolist() == [FP]
+
+
+def test_a_box_mostly_on_background_stays_a_false_positive():
+    # A 20x20 detection with a quarter of its area on a difficult 10x10 car.
+    match = match_image([[0, 0, 20, 20]], [1.0], [[0, 0, 10, 10]], [True])
+    assert match.labels.tolist() == [FP]
+    assert match.fp == 1
+
+
+def test_coverage_rule_never_applies_to_normal_boxes():
+    # Wholly inside a non-difficult box, IoU 1/3: a false positive (poor localisation).
+    match = match_image([[0, 0, 10, 10]], [1.0], [[0, 0, 30, 10]], [False])
+    assert match.labels.tolist() == [FP]
+    assert match.fn == 1
+
+
+def test_a_true_positive_is_not_turned_into_an_ignored_one():
+    # The detection matches the normal car (IoU 0.8) and also lies inside a big difficult box.
+    gt = [[0, 0, 10, 10], [0, 0, 40, 40]]
+    match = match_image([[0, 0, 10, 8]], [1.0], gt, [False, True])
+    assert match.labels.tolist() == [TP]
+    assert match.gt_found.tolist() == [True, False]
+
+
+def test_plain_voc_rule_when_coverage_is_disabled():
+    match = match_image([[0, 0, 4, 10]], [0.9], [[0, 0, 10, 10]], [True], difficult_cover=None)
+    assert match.labels.tolist() == [FP]
+    report = evaluate({"a.jpg": ([[0, 0, 4, 10]], [0.9])},
+                      {"a.jpg": [car([0, 0, 10, 10], difficult=True)]}, difficult_cover=None)
+    assert (report.fp, report.ignored, report.precision) == (1, 0, 0.0)
+    assert report.to_dict()["difficult_cover"] is None
+
+
+def test_evaluate_applies_the_coverage_rule_by_default():
+    annotations = {"a.jpg": [car([0, 0, 10, 10], difficult=True), car([50, 0, 70, 20])]}
+    results = {"a.jpg": ([[0, 0, 4, 10], [50, 0, 70, 20]], [0.9, 0.8])}
+    report = evaluate(results, annotations)
+    assert DIFFICULT_COVER == 0.5
+    assert (report.tp, report.fp, report.ignored, report.precision) == (1, 0, 1, 1.0)
+    assert report.to_dict()["difficult_cover"] == 0.5
+
+
+def test_cover_matrix():
+    cover = cover_matrix([[0, 0, 10, 10], [5, 5, 5, 9]], [[5, 0, 20, 10], [0, 0, 2, 2]])
+    np.testing.assert_allclose(cover, [[0.5, 0.04], [0.0, 0.0]])
 
 
 def test_duplicate_detection_is_a_false_positive():

@@ -4,11 +4,14 @@ Run from the checkout's root (``FASTDET_DATA`` or ../shared/data)::
 
     python tools/build_default_model.py [--work DIR]
 
-1. train a first model on ``vehicles/`` and ``non-vehicles/``;
+1. train a first model on ``vehicles/`` and ``non-vehicles/`` (flipped and
+   jittered copies of the training crops, see ``fastdet.train``);
 2. mine its false hits on the annotated frames of ``test_video.mp4``
    (``tests/data/test_video_annotations.json``, our own annotations; the test
-   images are never used for training or tuning);
-3. retrain with those hard negatives -> ``fastdet/data/default_model.npz``;
+   images are never used for training or tuning) at a low decision threshold,
+   so borderline windows are found too;
+3. retrain with those hard negatives, C chosen by cross-validation on the
+   leak-free training folds -> ``fastdet/data/default_model.npz``;
 4. tune the detection thresholds on the same annotated video frames and
    print them; they are the defaults in ``fastdet/config.py``.
 """
@@ -30,7 +33,11 @@ from fastdet.shared_data import data_dir  # noqa: E402
 #: Feature options of the bundled model (chosen by the colour-space study).
 OPTIONS = FeatureOptions()
 #: Decision threshold used while mining: low, so borderline negatives are found too.
-MINING_THRESHOLD = -0.5
+#: -1.0 finds 305 windows on the 17 annotated frames against 120 at -0.5; the
+#: retrained model's leak-free accuracy is 99.39 % against 99.35 % with none.
+MINING_THRESHOLD = -1.0
+#: C values the final model chooses from by leak-free cross-validation.
+C_GRID = (3e-4, 1e-3, 3e-3)
 
 
 def run(*args):
@@ -61,7 +68,8 @@ def main():
     run("mine", video, "--annotations", annotations, "--out", mined, "--model", first,
         "--config", mining_config, "--threads", 1)
     final = ROOT / "fastdet" / "data" / "default_model.npz"
-    run("train", data, "--out", final, "--extra-negatives", mined, *options)
+    run("train", data, "--out", final, "--extra-negatives", mined, "--cv", "--C", *C_GRID,
+        *options)
     run("tune", video, "--annotations", annotations, "--model", final,
         "--out", work / "tuned.toml")
     print(f"intermediate files in {work}")
