@@ -73,7 +73,7 @@ def cmd_detect(args):
 
 # -- eval -------------------------------------------------------------------
 def cmd_eval(args):
-    from .evaluate import evaluate, load_annotations
+    from .evaluate import DIFFICULT_COVER, evaluate, load_annotations
 
     annotations = load_annotations(args.annotations)
     detector = _detector(args)
@@ -82,7 +82,8 @@ def cmd_eval(args):
     for name in sorted(annotations):
         detections = detector(read_image(image_dir / name))
         results[name] = (detections.xyxy, detections.score)
-    report = evaluate(results, annotations, iou_threshold=args.iou)
+    cover = None if args.voc else DIFFICULT_COVER
+    report = evaluate(results, annotations, iou_threshold=args.iou, difficult_cover=cover)
     if args.json:
         print(json.dumps(report.to_dict()))
     else:
@@ -199,6 +200,10 @@ def build_parser():
     evaluate.add_argument("image_dir", metavar="IMAGE_DIR")
     evaluate.add_argument("--iou", type=float, default=0.5, help="match threshold (default 0.5)")
     evaluate.add_argument("--json", action="store_true", help="print the full report as JSON")
+    evaluate.add_argument("--voc", action="store_true",
+                          help="plain VOC rule: a detection on a difficult box counts only when "
+                               "it matches it at --iou (default: also when half of it lies "
+                               "inside one)")
     _add_model_options(evaluate)
     evaluate.set_defaults(handler=cmd_eval)
 

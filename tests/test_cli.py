@@ -101,6 +101,21 @@ def test_eval_prints_the_four_figures(capsys, model_path, data_dir):
         assert 0.0 <= report[key] <= 1.0
 
 
+def test_eval_voc_switch_selects_the_plain_rule(capsys, model_path, data_dir):
+    images = data_dir / "test_images"
+    args = ["eval", str(images / "annotations.json"), str(images), "--model", str(model_path),
+            "--json", "--threads", "1"]
+    assert main(args) == 0
+    default = json.loads(capsys.readouterr().out)
+    assert main(args + ["--voc"]) == 0
+    voc = json.loads(capsys.readouterr().out)
+    assert default["difficult_cover"] == 0.5
+    assert voc["difficult_cover"] is None
+    # The coverage rule only ever ignores detections VOC counts as false.
+    assert voc["fp"] >= default["fp"]
+    assert voc["tp"] == default["tp"]
+
+
 def test_eval_missing_annotations(capsys, model_path, tmp_path):
     assert main(["eval", str(tmp_path / "a.json"), str(tmp_path), "--model", str(model_path)]) \
         == EXIT_ERROR
