@@ -115,7 +115,8 @@ def cmd_train(args):
     else:
         C = DEFAULT_C_GRID if args.cv else DEFAULT_C
     model, (test_scores, test_labels) = train(
-        args.data_dir, options=options, C=C, flip=not args.no_flip, n_folds=args.folds,
+        args.data_dir, options=options, C=C, flip=not args.no_flip, jitter=not args.no_jitter,
+        n_folds=args.folds,
         extra_negatives=args.extra_negatives or (), return_test_scores=True,
         log=lambda line: print(line, file=sys.stderr, flush=True))
     model.save(args.out)
@@ -233,6 +234,8 @@ def build_parser():
     train.add_argument("--cv", action="store_true",
                        help=f"choose C from {list(DEFAULT_C_GRID)} by leak-free cross-validation")
     train.add_argument("--no-flip", action="store_true", help="no horizontal-flip augmentation")
+    train.add_argument("--no-jitter", action="store_true",
+                       help="no jittered (scaled, shifted) copy of each training crop")
     train.add_argument("--folds", type=int, default=5, help="leak-free split: contiguous folds")
     train.add_argument("--extra-negatives", nargs="+", metavar="DIR",
                        help="more folders of non-vehicle crops")

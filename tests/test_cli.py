@@ -145,6 +145,18 @@ def test_train_writes_a_loadable_model(capsys, tmp_path):
     model = load_model(out)
     assert model.options.spatial_size == 16
     assert model.report["crops"] == 60
+    assert model.report["jitter_augmentation"] is not None
+
+
+def test_train_no_jitter_switch(capsys, tmp_path):
+    rng = np.random.default_rng(0)
+    make_crops(tmp_path / "data" / "vehicles" / "GTI_Far", 1, 30, rng)
+    make_crops(tmp_path / "data" / "non-vehicles" / "GTI", 0, 30, rng)
+    out = tmp_path / "m.npz"
+    assert main(["train", str(tmp_path / "data"), "--out", str(out), "--no-flip", "--no-jitter",
+                 "--spatial-size", "16", "--hist-bins", "16"]) == 0
+    from fastdet.model import load_model
+    assert load_model(out).report["jitter_augmentation"] is None
 
 
 def test_train_missing_folder(capsys, tmp_path):
