@@ -24,10 +24,9 @@ from .detections import Detections
 from .errors import InputError
 from .features import WINDOW, color_planes, histogram_bin_lut, hog_input
 from .kernels.blocks import normalize_blocks
-from .kernels.heat import accumulate_heat
+from .kernels.heat import box_heat_region
 from .kernels.hog import cell_histograms, phase_layout_shape
-from .kernels.label import (component_boxes, component_core_boxes, component_max,
-                            label_components, split_component)
+from .kernels.label import component_boxes, heat_blobs, label_components, split_component
 from .kernels.colour import colour_maps
 from .kernels.score import (add_hog_scores, add_hog_scores_from_phase_cells, add_spatial_scores,
                             add_tile_window_sums, window_count)
@@ -35,6 +34,8 @@ from .model import Model, load_model
 
 #: Sub-sampling of the cheap first pass that decides whether a heat blob splits.
 _SPLIT_PROBE = 4
+#: Fractions of the way from the heat threshold to a blob's peak at which it is split.
+_SPLIT_LEVELS = np.linspace(0.2, 0.8, 5)
 
 #: Names of the timed stages, in pipeline order.
 STAGES = ("resize_convert", "cells", "blocks_score", "colour_score", "heat", "label", "total")
@@ -399,12 +400,8 @@ class Detector:
         width, height = frame_size
         if len(hits.scores) == 0:
             return np.zeros((0, 0), np.float32), (0, 0)
-        x0 = max(int(hits.boxes[:, 0].min()), 0)
-        y0 = max(int(hits.boxes[:, 1].min()), 0)
-        x1 = min(int(hits.boxes[:, 2].max()), width)
-        y1 = min(int(hits.boxes[:, 3].max()), height)
-        shifted = hits.boxes - np.array([x0, y0, x0, y0], dtype=np.int32)
-        heat = accumulate_heat(shifted, self.heat_weights(hits, frame_size), y1 - y0, x1 - x0)
+        heat, x0, y0 = box_heat_region(hits.boxes, self.heat_weights(hits, frame_size),
+                                       width, height)
         return heat, (x0, y0)
 
     def heatmap(self, frame):
@@ -433,73 +430,69 @@ class Detector:
         return self.finish_boxes(boxes, peaks, frame_size)
 
     def heat_components(self, heat, origin, frame_size=None):
-        """Boxes and peak heat of each blob (refined and split per ``[heat]``)."""
-        empty = (np.zeros((0, 4), np.int32), np.zeros(0, np.float32))
+        """Boxes and peak heat of each blob (refined and split per ``[heat]``).
+
+        ``heat`` is float32 or float64 (other dtypes are taken as float64).
+        """
         if heat.size == 0:
-            return empty
-        cfg = self.config.heat
-        mask = heat > cfg.threshold
-        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-        if rows.size == 0:
-            return empty
-        # Label only the part of the region where the heat passes the threshold.
-        y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
-        heat = np.ascontiguousarray(heat[y0:y1, x0:x1])
-        origin = (origin[0] + int(x0), origin[1] + int(y0))
-        labels, count = label_components(np.ascontiguousarray(mask[y0:y1, x0:x1]),
-                                         cfg.connectivity)
-        peaks = component_max(labels, count, heat)
-        whole = component_boxes(labels, count)
-        boxes = whole
-        if cfg.peak_fraction > 0:
-            boxes = component_core_boxes(labels, count, heat,
-                                         (peaks * np.float32(cfg.peak_fraction)).astype(np.float32))
-        if cfg.split:
-            boxes, peaks = self._split_blobs(heat, labels, whole, boxes, peaks, frame_size)
-        boxes += np.array([origin[0], origin[1], origin[0], origin[1]], dtype=np.int32)
+            return np.zeros((0, 4), np.int32), np.zeros(0, np.float32)
+        # The kernel's settings, kept while the config and frame size stay:
+        # Python work here costs more than the kernel's per-blob work.
+        params = self.__dict__.get("_heat_blob_params")
+        if params is None or params[0] is not self.config or params[1] != frame_size:
+            cfg = self.config.heat
+            min_size = -1
+            if cfg.split:
+                scale = 1.0
+                if frame_size is not None:
+                    ref_w, ref_h = self.config.search.reference_size
+                    scale = math.sqrt(frame_size[0] / ref_w * frame_size[1] / ref_h)
+                min_size = int(round(cfg.split_min_size * scale))
+            params = self._heat_blob_params = (
+                self.config, frame_size, float(cfg.threshold), cfg.connectivity == 8,
+                bool(cfg.peak_fraction > 0), np.float32(cfg.peak_fraction), min_size,
+                _SPLIT_PROBE, _SPLIT_LEVELS)
+        if heat.dtype != np.float32 and heat.dtype != np.float64:
+            heat = heat.astype(np.float64)
+        # One kernel thresholds and labels the heat on its grid of constant
+        # cells, measures the blobs and probes which of them split.
+        boxes, peaks, probed, n_probed = heat_blobs(heat, origin[0], origin[1], *params[2:])
+        if n_probed:
+            boxes, peaks = self._split_blobs(heat, origin, boxes, peaks, probed, params[6])
         return boxes, peaks
 
-    def _split_blobs(self, heat, labels, whole, boxes, peaks, frame_size):
-        """Replace blobs with two car-sized peaks by one box per peak."""
+    def _split_blobs(self, heat, origin, boxes, peaks, probed, min_size):
+        """Replace blobs with two car-sized peaks by one box per peak.
+
+        Heat is piecewise constant over window steps of 8+ pixels, so a
+        quarter-resolution probe (run by ``heat_blobs``) finds out cheaply
+        whether a blob splits at all; the ``probed`` ones are split here at
+        full resolution.
+        """
         cfg = self.config.heat
-        scale = 1.0
-        if frame_size is not None:
-            ref_w, ref_h = self.config.search.reference_size
-            scale = math.sqrt(frame_size[0] / ref_w * frame_size[1] / ref_h)
-        min_size = int(round(cfg.split_min_size * scale))
+        labels, count = label_components(heat > cfg.threshold, cfg.connectivity)
+        whole = component_boxes(labels, count)
+        shift = np.array([origin[0], origin[1], origin[0], origin[1]], dtype=np.int32)
         out_boxes, out_peaks = [], []
         for k in range(len(peaks)):
-            x1, y1, x2, y2 = whole[k]
-            if max(x2 - x1, y2 - y1) < 2 * min_size:
-                out_boxes.append(boxes[k:k + 1])
-                out_peaks.append(peaks[k:k + 1])
-                continue
-            region = heat[y1:y2, x1:x2]
-            mask = np.ascontiguousarray(labels[y1:y2, x1:x2] == k + 1)
-            levels = (cfg.threshold + (peaks[k] - cfg.threshold)
-                      * np.linspace(0.2, 0.8, 5)).astype(np.float32)
-            # Heat is piecewise constant over window steps of 8+ pixels, so a
-            # quarter-resolution pass finds out cheaply whether the blob splits
-            # at all; only then is it split at full resolution.
-            coarse = split_component(np.ascontiguousarray(region[::_SPLIT_PROBE, ::_SPLIT_PROBE]),
-                                     np.ascontiguousarray(mask[::_SPLIT_PROBE, ::_SPLIT_PROBE]),
-                                     levels, max(1, min_size // _SPLIT_PROBE),
-                                     max(1, min_size // _SPLIT_PROBE), cfg.connectivity)
-            if len(coarse) < 2:
-                out_boxes.append(boxes[k:k + 1])
-                out_peaks.append(peaks[k:k + 1])
-                continue
-            parts = split_component(np.ascontiguousarray(region), mask, levels, min_size,
-                                    min_size, cfg.connectivity)
-            # A seed that won no pixel yields an empty box; it is no car.
-            parts = parts[(parts[:, 2] > parts[:, 0]) & (parts[:, 3] > parts[:, 1])]
+            parts = boxes[:0]
+            if probed[k]:
+                x1, y1, x2, y2 = whole[k]
+                region = heat[y1:y2, x1:x2]
+                mask = np.ascontiguousarray(labels[y1:y2, x1:x2] == k + 1)
+                levels = (cfg.threshold + (peaks[k] - cfg.threshold)
+                          * _SPLIT_LEVELS).astype(np.float32)
+                parts = split_component(np.ascontiguousarray(region), mask, levels, min_size,
+                                        min_size, cfg.connectivity)
+                # A seed that won no pixel yields an empty box; it is no car.
+                parts = parts[(parts[:, 2] > parts[:, 0]) & (parts[:, 3] > parts[:, 1])]
             if len(parts) < 2:
                 out_boxes.append(boxes[k:k + 1])
                 out_peaks.append(peaks[k:k + 1])
                 continue
             out_peaks.append(np.array([region[py1:py2, px1:px2][mask[py1:py2, px1:px2]].max()
                                        for px1, py1, px2, py2 in parts], dtype=np.float32))
-            out_boxes.append(parts + np.array([x1, y1, x1, y1], dtype=np.int32))
+            out_boxes.append(parts + np.array([x1, y1, x1, y1], dtype=np.int32) + shift)
         return np.concatenate(out_boxes), np.concatenate(out_peaks)
 
     def finish_boxes(self, boxes, peaks, frame_size):

@@ -129,3 +129,141 @@ def test_mismatched_weights_raise():
     boxes = np.zeros((3, 4), dtype=np.int32)
     with pytest.raises(ValueError):
         accumulate_heat(boxes, np.ones(2, dtype=np.float32), 5, 5)
+
+
+# -- the cell grid ---------------------------------------------------------------
+
+from fastdet.kernels.heat import box_heat_region, heat_cells  # noqa: E402
+
+
+def assert_same_bits(actual, expected):
+    """Identical shape, dtype and bits (so -0.0 != 0.0 and NaN payloads count)."""
+    assert_identical(actual, expected)
+    np.testing.assert_array_equal(actual.view(np.uint32), expected.view(np.uint32))
+
+
+def difference_array_heat(boxes, weights, height, width):
+    """The plain full-resolution difference-array method, in numpy.
+
+    ``np.cumsum`` adds sequentially, so this performs exactly the additions
+    of a row-then-column running-sum pass, in the same order: the kernels
+    must match it bit for bit even where float64 rounds.
+    """
+    diff = np.zeros((height + 1, width + 1), dtype=np.float64)
+    for (x1, y1, x2, y2), weight in zip(np.asarray(boxes).tolist(), weights):
+        x1, x2 = np.clip([x1, x2], 0, width)
+        y1, y2 = np.clip([y1, y2], 0, height)
+        if x2 > x1 and y2 > y1:
+            weight = np.float64(weight)
+            diff[y1, x1] += weight
+            diff[y1, x2] -= weight
+            diff[y2, x1] -= weight
+            diff[y2, x2] += weight
+    summed = np.cumsum(np.cumsum(diff, axis=1), axis=0)
+    return summed[:height, :width].astype(np.float32)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_bit_identical_to_full_resolution_method_when_float64_rounds(seed):
+    # Huge weights of both signs that cancel over tiny ones: the float64
+    # running sums round, so only the same additions in the same order give
+    # the same bits (a per-box accumulation does not).
+    rng = np.random.default_rng(100 + seed)
+    height, width = 61, 83
+    boxes, small = random_boxes(rng, 300, height, width)
+    huge = np.float32(3e7) * rng.choice([1, -1], len(boxes)).astype(np.float32)
+    weights = np.where(np.arange(len(boxes)) % 3 == 0, small * np.float32(1e-4), huge)
+    expected = difference_array_heat(boxes, weights, height, width)
+    assert not np.array_equal(expected, naive_heat(boxes, weights, height, width))
+    assert_same_bits(accumulate_heat(boxes, weights, height, width), expected)
+    heat = np.zeros((height, width), np.float32)
+    accumulate_heat_into(heat, boxes, weights)
+    assert_same_bits(heat, expected)
+
+
+def test_window_grid_boxes_match_naive():
+    # Many boxes sharing edges, like a detector's window grid (8-px steps).
+    rng = np.random.default_rng(6)
+    xs, ys = np.meshgrid(np.arange(0, 400, 8), np.arange(0, 120, 8))
+    starts = np.stack([xs.ravel(), ys.ravel()], axis=1)
+    chosen = starts[rng.random(len(starts)) < 0.2]
+    side = rng.choice([32, 48, 64], len(chosen))
+    boxes = np.column_stack([chosen, chosen + side[:, None]]).astype(np.int32)
+    weights = rng.uniform(0.01, 3.0, len(boxes)).astype(np.float32)
+    assert_same_bits(accumulate_heat(boxes, weights, 150, 430),
+                     naive_heat(boxes, weights, 150, 430))
+
+
+@pytest.mark.parametrize(("height", "width", "n_boxes"), [(1, 1, 5), (7, 13, 20), (90, 70, 60)])
+def test_heat_cells_expand_to_the_heat_map(height, width, n_boxes):
+    rng = np.random.default_rng(height + width)
+    boxes, weights = random_boxes(rng, n_boxes, height, width)
+    x0, y0 = 3, -2
+    shifted = boxes + np.array([x0, y0, x0, y0], dtype=np.int32)
+    rows, cols, cells = heat_cells(shifted, weights, x0, y0, height, width)
+    assert rows[0] == 0 and rows[-1] == height and np.all(np.diff(rows) > 0)
+    assert cols[0] == 0 and cols[-1] == width and np.all(np.diff(cols) > 0)
+    expanded = np.repeat(np.repeat(cells, np.diff(rows), axis=0), np.diff(cols), axis=1)
+    assert_same_bits(expanded, naive_heat(boxes, weights, height, width))
+    # Cells are cut only at (clipped) edges of boxes that paint something.
+    clipped = np.clip(boxes, 0, [width, height, width, height])
+    painting = (clipped[:, 2] > clipped[:, 0]) & (clipped[:, 3] > clipped[:, 1])
+    assert set(cols[1:-1]) <= set(clipped[painting][:, [0, 2]].ravel())
+    assert set(rows[1:-1]) <= set(clipped[painting][:, [1, 3]].ravel())
+
+
+def test_heat_cells_without_boxes_is_one_zero_cell():
+    rows, cols, cells = heat_cells(np.zeros((0, 4), np.int32), np.zeros(0, np.float32),
+                                   0, 0, 4, 6)
+    assert rows.tolist() == [0, 4] and cols.tolist() == [0, 6]
+    assert_same_bits(cells, np.zeros((1, 1), np.float32))
+
+
+def test_accumulate_into_negative_zero_becomes_zero_where_uncovered():
+    # heat += 0.0 turns -0.0 into +0.0, as numpy's addition does.
+    boxes = np.array([[1, 1, 3, 2]], dtype=np.int32)
+    weights = np.array([2.5], dtype=np.float32)
+    heat = np.full((3, 4), -0.0, dtype=np.float32)
+    accumulate_heat_into(heat, boxes, weights)
+    assert_same_bits(heat, np.full((3, 4), -0.0, np.float32) + naive_heat(boxes, weights, 3, 4))
+
+
+def reference_region(boxes, weights, width, height):
+    x0 = max(int(boxes[:, 0].min()), 0)
+    y0 = max(int(boxes[:, 1].min()), 0)
+    x1 = min(int(boxes[:, 2].max()), width)
+    y1 = min(int(boxes[:, 3].max()), height)
+    shifted = boxes - np.array([x0, y0, x0, y0])
+    return naive_heat(shifted, weights, y1 - y0, x1 - x0), x0, y0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_box_heat_region_matches_numpy(seed):
+    rng = np.random.default_rng(200 + seed)
+    width, height = 320, 180
+    n_boxes = int(rng.integers(1, 40))
+    x1 = rng.integers(-40, width, n_boxes)
+    y1 = rng.integers(-40, height, n_boxes)
+    side = rng.integers(1, 90, n_boxes)
+    boxes = np.stack([x1, y1, x1 + side, y1 + side], axis=1).astype(np.int32)
+    weights = rng.uniform(0.1, 4.0, n_boxes).astype(np.float32)
+    heat, x0, y0 = box_heat_region(boxes, weights, width, height)
+    expected, ex0, ey0 = reference_region(boxes, weights, width, height)
+    assert (x0, y0) == (ex0, ey0)
+    assert_same_bits(heat, expected)
+    assert np.count_nonzero(heat) > 0
+
+
+def test_box_heat_region_edge_cases():
+    empty, x0, y0 = box_heat_region(np.zeros((0, 4), np.int32), np.zeros(0, np.float32), 9, 9)
+    assert_identical(empty, np.zeros((0, 0), np.float32))
+    assert (x0, y0) == (0, 0)
+    # One box touching the frame's far corner, one pixel.
+    heat, x0, y0 = box_heat_region(np.array([[8, 6, 12, 20]], np.int32),
+                                   np.array([1.5], np.float32), 9, 7)
+    assert (x0, y0) == (8, 6)
+    assert_same_bits(heat, np.full((1, 1), 1.5, np.float32))
+    with pytest.raises(ValueError):
+        box_heat_region(np.array([[20, 0, 30, 5]], np.int32), np.ones(1, np.float32), 9, 9)
+    with pytest.raises(ValueError):
+        box_heat_region(np.zeros((2, 4), np.int32), np.ones(3, np.float32), 9, 9)

@@ -302,3 +302,207 @@ def test_component_core_boxes_match_numpy(seed):
         ys, xs = np.nonzero((labels == k + 1) & (values >= thresholds[k]))
         expected = [0, 0, 0, 0] if len(xs) == 0 else [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]
         assert boxes[k].tolist() == expected
+
+
+# -- heat blobs on the grid of constant cells ------------------------------------
+
+from fastdet.kernels.label import constant_runs, heat_blobs, split_levels  # noqa: E402
+from naive import naive_heat  # noqa: E402
+
+SPLIT_FRACTIONS = np.linspace(0.2, 0.8, 5)
+
+
+def reference_runs(bits):
+    """Starts of the runs of identical rows / columns, with plain numpy."""
+    height, width = bits.shape
+    new_rows = np.ones(height, dtype=bool)
+    new_rows[1:] = (bits[1:] != bits[:-1]).any(axis=1)
+    new_cols = np.ones(width, dtype=bool)
+    new_cols[1:] = (bits[:, 1:] != bits[:, :-1]).any(axis=0)
+    return (np.append(np.flatnonzero(new_rows), height),
+            np.append(np.flatnonzero(new_cols), width))
+
+
+def box_heat(rng, height, width, n_boxes, step=1, dtype=np.float32):
+    """A heat map of random boxes (edges on multiples of ``step``): piecewise constant."""
+    x1 = rng.integers(-3, width, n_boxes) // step * step
+    y1 = rng.integers(-3, height, n_boxes) // step * step
+    x2 = x1 + rng.integers(1, max(2, width // 2), n_boxes) // step * step + step
+    y2 = y1 + rng.integers(1, max(2, height // 2), n_boxes) // step * step + step
+    boxes = np.stack([x1, y1, x2, y2], axis=1).astype(np.int32)
+    weights = rng.uniform(0.2, 2.0, n_boxes).astype(np.float32)
+    return naive_heat(boxes, weights, height, width).astype(dtype)
+
+
+def two_humps(split=True):
+    """Two car-sized heat humps joined by a low saddle, or nested into one hump (float32)."""
+    heat = np.zeros((90, 220), np.float32)
+    heat[15:85, 10:215] += 2.0
+    heat[25:75, 20:100] += 3.0
+    if split:
+        heat[20:80, 120:210] += 4.0
+    else:
+        heat[30:70, 30:90] += 4.0
+    return heat
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 9), (9, 1), (17, 31), (120, 333)], ids=str)
+@pytest.mark.parametrize("seed", range(3))
+def test_constant_runs_match_numpy(shape, seed):
+    rng = np.random.default_rng(seed * 7 + shape[1])
+    heat = box_heat(rng, *shape, n_boxes=6, step=4)
+    rows, cols = constant_runs(heat.view(np.uint32))
+    expected_rows, expected_cols = reference_runs(heat.view(np.uint32))
+    assert_identical(rows, expected_rows)
+    assert_identical(cols, expected_cols)
+    # The runs really are constant: every pixel equals its cell's first pixel.
+    cell_rows = np.repeat(np.arange(len(rows) - 1), np.diff(rows))
+    cell_cols = np.repeat(np.arange(len(cols) - 1), np.diff(cols))
+    np.testing.assert_array_equal(
+        heat, heat[rows[:-1]][:, cols[:-1]][np.ix_(cell_rows, cell_cols)])
+
+
+def test_constant_runs_compare_bits():
+    # -0.0 == 0.0 and NaN != NaN as floats, but runs go by identical bits.
+    heat = np.array([[0.0, -0.0, np.nan, np.nan],
+                     [0.0, -0.0, np.nan, np.nan],
+                     [-0.0, -0.0, np.nan, np.nan]], dtype=np.float32)
+    rows, cols = constant_runs(heat.view(np.uint32))
+    assert rows.tolist() == [0, 2, 3]
+    assert cols.tolist() == [0, 1, 2, 4]
+    assert [r.tolist() for r in constant_runs(np.zeros((0, 3), np.uint32))] == [[0], [0, 3]]
+
+
+@pytest.mark.parametrize("threshold", [3.0, 1.1, -0.5, 2.0 ** -30])
+def test_split_levels_match_numpy(threshold):
+    # heat_components' (threshold + (peak - threshold) * fractions) in NumPy 2
+    # promotion: a float32 peak minus a Python float is float32.
+    rng = np.random.default_rng(5)
+    for peak in (rng.uniform(-2, 40, 200).astype(np.float32).tolist() + [threshold]):
+        peak = np.float32(peak)
+        expected = (threshold + (peak - threshold) * SPLIT_FRACTIONS).astype(np.float32)
+        assert_identical(split_levels(peak, threshold, SPLIT_FRACTIONS), expected)
+
+
+def reference_splits(values, mask, levels, min_size):
+    """``split_component``'s decision with scipy: some level gives 2+ car-sized parts."""
+    for level in levels:
+        labels, count = ndi.label(mask & (values > level), STRUCTURES[8])
+        if count == 0:
+            return False
+        big = sum(1 for rows, cols in ndi.find_objects(labels)
+                  if cols.stop - cols.start >= min_size and rows.stop - rows.start >= min_size)
+        if big >= 2:
+            return True
+    return False
+
+
+def reference_blobs(heat, origin, threshold, connectivity, peak_fraction, split_size, step):
+    """What ``heat_blobs`` returns, at full resolution with scipy and numpy.
+
+    As the detector always did it: label the thresholded heat, take each
+    blob's peak and (core) box, and probe blobs at least twice a car's size
+    by ``split_component``'s decision on every ``step``-th pixel.
+    """
+    mask = heat > heat.dtype.type(threshold)
+    empty = (np.zeros((0, 4), np.int32), np.zeros(0, np.float32), np.zeros(0, bool))
+    if not mask.any():
+        return empty
+    y0 = np.flatnonzero(mask.any(axis=1))[0]
+    x0 = np.flatnonzero(mask.any(axis=0))[0]
+    labels, count = ndi.label(mask, STRUCTURES[connectivity])
+    index = np.arange(1, count + 1)
+    peaks = np.asarray(ndi.maximum(heat, labels, index)).astype(np.float32)
+    whole = find_objects_boxes(labels, count)
+    boxes = whole.copy()
+    if peak_fraction > 0:
+        core = (peaks * np.float32(peak_fraction)).astype(np.float32)
+        for k in range(count):
+            ys, xs = np.nonzero((labels == k + 1) & (heat >= core[k]))
+            # An empty core box sits at the corner of the thresholded region.
+            boxes[k] = ([x0, y0, x0, y0] if len(xs) == 0
+                        else [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
+    probed = np.zeros(count, dtype=bool)
+    for k in range(count if split_size >= 0 else 0):
+        x1, y1, x2, y2 = whole[k]
+        if max(x2 - x1, y2 - y1) < 2 * split_size:
+            continue
+        levels = (threshold + (peaks[k] - threshold) * SPLIT_FRACTIONS).astype(np.float32)
+        region = heat[y1:y2:step, x1:x2:step]
+        blob = (labels[y1:y2, x1:x2] == k + 1)[::step, ::step]
+        probed[k] = reference_splits(region, blob, levels, max(1, split_size // step))
+    boxes += np.array([origin[0], origin[1], origin[0], origin[1]], dtype=np.int32)
+    return boxes, peaks, probed
+
+
+def assert_blobs_match(heat, threshold=1.0, connectivity=8, peak_fraction=0.3, split_size=12,
+                       step=4, origin=(5, -3)):
+    expected = reference_blobs(heat, origin, threshold, connectivity, peak_fraction,
+                               split_size, step)
+    boxes, peaks, probed, n_probed = heat_blobs(
+        heat, origin[0], origin[1], threshold, connectivity == 8, peak_fraction > 0,
+        np.float32(peak_fraction), split_size, step, SPLIT_FRACTIONS)
+    assert_identical(boxes, expected[0])
+    assert_identical(peaks, expected[1])
+    assert_identical(probed, expected[2])
+    assert n_probed == expected[2].sum()
+    return len(peaks), n_probed
+
+
+@pytest.mark.parametrize("connectivity", CONNECTIVITIES)
+@pytest.mark.parametrize("seed", range(24))
+def test_heat_blobs_match_full_resolution(seed, connectivity):
+    rng = np.random.default_rng(300 + seed)
+    shape = [(90, 160), (37, 53), (64, 250)][seed % 3]
+    heat = box_heat(rng, *shape, n_boxes=int(rng.integers(3, 30)), step=int(rng.choice([1, 3, 8])))
+    count, _ = assert_blobs_match(heat, threshold=float(rng.uniform(0.5, 3.0)),
+                                  connectivity=connectivity,
+                                  peak_fraction=float(rng.choice([0.0, 0.3, 0.7])),
+                                  split_size=int(rng.choice([-1, 4, 9, 16])),
+                                  step=int(rng.choice([1, 2, 4])))
+
+
+def test_heat_blobs_probe_both_ways():
+    # The probe passes for two humps and fails for one; both decisions must
+    # match the pixel-level probe.
+    counts = [assert_blobs_match(two_humps(split), threshold=1.0, split_size=24, step=4)
+              for split in (True, False)]
+    assert counts == [(1, 1), (1, 0)]
+    # Odd probe steps and sizes: samples straddle the cells unevenly.
+    for step, size in [(3, 10), (5, 20), (7, 24), (1, 30), (4, 90)]:
+        assert_blobs_match(two_humps(), threshold=1.0, split_size=size, step=step)
+
+
+@pytest.mark.parametrize("connectivity", CONNECTIVITIES)
+def test_heat_blobs_on_heat_that_is_not_piecewise_constant(connectivity):
+    # No runs to merge: every pixel is its own cell.
+    rng = np.random.default_rng(8)
+    heat = ndi.uniform_filter(rng.random((60, 90)).astype(np.float32), 5)
+    count, _ = assert_blobs_match(heat, threshold=0.5, connectivity=connectivity,
+                                  split_size=6, step=2)
+    assert count > 1
+
+
+def test_heat_blobs_float64_and_strided_heat():
+    rng = np.random.default_rng(9)
+    heat = box_heat(rng, 80, 120, 20, step=4, dtype=np.float64) * 1.01
+    assert_blobs_match(heat, threshold=1.3)
+    wide = np.repeat(box_heat(rng, 80, 120, 20, step=4), 2, axis=1)
+    assert_blobs_match(wide[:, ::2], threshold=1.3)
+    # Threshold and peak-fraction rounding: compared in the heat's precision.
+    heat32 = np.full((5, 5), np.float32(0.1))
+    assert assert_blobs_match(heat32, threshold=0.1)[0] == 0
+    assert assert_blobs_match(heat32.astype(np.float64), threshold=0.1)[0] == 1
+
+
+def test_heat_blobs_edge_cases():
+    # Nothing above the threshold; a single pixel; everything above.
+    assert assert_blobs_match(np.zeros((7, 9), np.float32)) == (0, 0)
+    assert assert_blobs_match(np.full((1, 1), 5.0, np.float32)) == (1, 0)
+    assert assert_blobs_match(np.full((30, 40), 5.0, np.float32), split_size=10) == (1, 0)
+    # Negative threshold and peaks: empty core boxes at the region's corner.
+    heat = np.full((6, 8), -0.2, np.float32)
+    heat[2:4, 3:6] = -0.1
+    heat[0, 0] = -1.0
+    count, _ = assert_blobs_match(heat, threshold=-0.5, peak_fraction=0.5)
+    assert count == 1

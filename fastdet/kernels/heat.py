@@ -8,16 +8,31 @@ Algorithm
 Painting every box pixel by pixel costs O(sum of box areas), which explodes
 with many large, heavily overlapping windows.  Instead each box
 ``[x1, y1, x2, y2)`` with weight ``w`` writes four entries into a 2-D
-difference array ``D`` of shape ``(H + 1, W + 1)``::
+difference array ``D``::
 
     D[y1, x1] += w    D[y1, x2] -= w
     D[y2, x1] -= w    D[y2, x2] += w
 
 The inclusive 2-D prefix sum ``S[y, x] = sum(D[:y + 1, :x + 1])`` is then
-exactly the summed weight of all boxes covering pixel ``(y, x)``.  A single
-raster pass computes it by keeping a running sum along the current row and a
-running sum per column, so the total work is O(N + H * W) regardless of box
-sizes or overlap.
+exactly the summed weight of all boxes covering pixel ``(y, x)``.
+
+``D`` is nonzero only on the rows and columns where some box starts or ends,
+so it is kept compressed: the sorted distinct box edges ``X`` (plus 0) and
+``Y`` (plus 0) cut the map into a grid of cells ``[Y[i], Y[i+1]) x [X[j],
+X[j+1])`` on which the heat is constant, and ``D`` is a ``(len(Y) + 1,
+len(X) + 1)`` array over edge indices.  One raster pass over the cells
+computes the prefix sum (a running sum along the row and a running sum per
+column), and the map is filled by writing each cell's value over its pixels
+(whole pixel rows of a cell row are plain row copies).  Total work is
+O(N + H + W + cells) plus writing the H * W output.
+
+This is the same arithmetic as the full-resolution prefix sum: there, every
+entry of ``D`` off the edge grid is an untouched +0.0, and adding +0.0 to a
+running sum changes nothing (no sum here is ever -0.0: every accumulator
+starts at +0.0 and IEEE addition gives -0.0 only for two -0.0 operands), so
+each pixel's running sums see exactly the additions, in the same order, as
+its cell's.  The output is therefore bit for bit that of the plain
+difference-array method, whatever the weights.
 
 Exactness
 ---------
@@ -36,7 +51,146 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["accumulate_heat", "accumulate_heat_into"]
+__all__ = ["accumulate_heat", "accumulate_heat_into", "box_heat_region", "heat_cells"]
+
+
+@numba.njit(cache=True, inline="always")
+def _clip(value, size):
+    return min(max(np.int64(value), 0), size)
+
+
+@numba.njit(cache=True, inline="always")
+def _edge_starts(index, size):
+    """Turn edge marks into cell numbers, in place; return the cell starts.
+
+    ``index[v]`` is nonzero where a cell starts (``index[0]`` always is).
+    Afterwards ``index[v]`` is the number of the cell starting at ``v`` for
+    every marked ``v < size`` and ``index[size]`` is the cell count; the
+    returned ``starts`` has ``count + 1`` entries ending with ``size``.
+    """
+    count = 0
+    for v in range(size):
+        if index[v] != 0:
+            count += 1
+    starts = np.empty(count + 1, dtype=np.int64)
+    cell = 0
+    for v in range(size):
+        if index[v] != 0:
+            starts[cell] = v
+            index[v] = cell
+            cell += 1
+    starts[count] = size
+    index[size] = count
+    return starts
+
+
+@numba.njit(cache=True)
+def heat_cells(boxes, weights, x0, y0, height, width):
+    """Heat of weighted boxes on the grid of cells their edges cut a map into.
+
+    The heat map of ``accumulate_heat(boxes - [x0, y0, x0, y0], weights,
+    height, width)`` is constant on each cell ``[row_starts[i],
+    row_starts[i + 1]) x [col_starts[j], col_starts[j + 1])``; this returns
+    those cells and their values without touching the pixels.
+
+    Parameters
+    ----------
+    boxes : numpy.ndarray
+        Integer array of shape ``(N, 4)``, rows ``[x1, y1, x2, y2]``
+        (exclusive ends) in coordinates where the map starts at ``(x0, y0)``.
+    weights : numpy.ndarray
+        float32 array of shape ``(N,)``.
+    x0, y0 : int
+        Map origin in box coordinates.
+    height, width : int
+        Map shape; boxes are clipped to it.
+
+    Returns
+    -------
+    row_starts : numpy.ndarray
+        int64 array ``(R + 1,)``, increasing, from 0 to ``height`` (just
+        ``[height]`` when ``height`` is 0).
+    col_starts : numpy.ndarray
+        int64 array ``(C + 1,)``, likewise for columns.
+    cells : numpy.ndarray
+        float32 array ``(R, C)``, the heat of each cell.
+
+    Raises
+    ------
+    ValueError
+        If ``boxes`` does not have 4 columns or ``weights`` does not have one
+        entry per box.
+    """
+    n_boxes = boxes.shape[0]
+    if boxes.shape[1] != 4:
+        raise ValueError("boxes must have shape (N, 4)")
+    if weights.shape[0] != n_boxes:
+        raise ValueError("weights must have one entry per box")
+    clipped = np.empty((n_boxes, 4), dtype=np.int64)
+    col_index = np.zeros(width + 1, dtype=np.int64)
+    row_index = np.zeros(height + 1, dtype=np.int64)
+    col_index[0] = 1
+    row_index[0] = 1
+    for i in range(n_boxes):
+        x1 = _clip(boxes[i, 0] - np.int64(x0), width)
+        y1 = _clip(boxes[i, 1] - np.int64(y0), height)
+        x2 = _clip(boxes[i, 2] - np.int64(x0), width)
+        y2 = _clip(boxes[i, 3] - np.int64(y0), height)
+        clipped[i, 0] = x1
+        clipped[i, 1] = y1
+        clipped[i, 2] = x2
+        clipped[i, 3] = y2
+        if x2 <= x1 or y2 <= y1:
+            continue
+        col_index[x1] = 1
+        col_index[x2] = 1
+        row_index[y1] = 1
+        row_index[y2] = 1
+    col_starts = _edge_starts(col_index, width)
+    row_starts = _edge_starts(row_index, height)
+    n_rows = row_starts.size - 1
+    n_cols = col_starts.size - 1
+
+    # The difference array over edge indices; index n_rows / n_cols stands
+    # for the map's far edge, which no cell reaches.  Boxes are added in
+    # input order, as the full-resolution method would.
+    diff = np.zeros((n_rows + 1, n_cols + 1), dtype=np.float64)
+    for i in range(n_boxes):
+        x1, y1, x2, y2 = clipped[i, 0], clipped[i, 1], clipped[i, 2], clipped[i, 3]
+        if x2 <= x1 or y2 <= y1:
+            continue
+        weight = np.float64(weights[i])
+        c1, c2 = col_index[x1], col_index[x2]
+        r1, r2 = row_index[y1], row_index[y2]
+        diff[r1, c1] += weight
+        diff[r1, c2] -= weight
+        diff[r2, c1] -= weight
+        diff[r2, c2] += weight
+
+    cells = np.empty((n_rows, n_cols), dtype=np.float32)
+    column_sum = np.zeros(n_cols, dtype=np.float64)
+    for r in range(n_rows):
+        row_sum = 0.0
+        for c in range(n_cols):
+            row_sum += diff[r, c]
+            column_sum[c] += row_sum
+            cells[r, c] = np.float32(column_sum[c])
+    return row_starts, col_starts, cells
+
+
+@numba.njit(cache=True)
+def _paint(heat, row_starts, col_starts, cells):
+    """Write every cell's value over its pixels (``heat`` fully overwritten)."""
+    width = heat.shape[1]
+    for r in range(row_starts.size - 1):
+        y = row_starts[r]
+        for c in range(col_starts.size - 1):
+            value = cells[r, c]
+            for x in range(col_starts[c], col_starts[c + 1]):
+                heat[y, x] = value
+        for other in range(y + 1, row_starts[r + 1]):
+            for x in range(width):
+                heat[other, x] = heat[y, x]
 
 
 @numba.njit(cache=True)
@@ -71,44 +225,19 @@ def accumulate_heat_into(heat, boxes, weights):
 
     Notes
     -----
-    Work is O(N + height * width) and extra memory O(height * width)
-    float64; see the module docstring for the exactness guarantee.
+    Work is O(N + height + width + cells) plus one add per pixel; see the
+    module docstring for the exactness guarantee.
     """
-    n_boxes = boxes.shape[0]
-    if boxes.shape[1] != 4:
-        raise ValueError("boxes must have shape (N, 4)")
-    if weights.shape[0] != n_boxes:
-        raise ValueError("weights must have one entry per box")
     height, width = heat.shape
-    if n_boxes == 0 or height == 0 or width == 0:
+    row_starts, col_starts, cells = heat_cells(boxes, weights, 0, 0, height, width)
+    if boxes.shape[0] == 0:
         return
-
-    # One extra row/column so corners at x2 == width / y2 == height need no
-    # special case; those entries never reach a pixel inside the map.
-    diff = np.zeros((height + 1, width + 1), dtype=np.float64)
-    for i in range(n_boxes):
-        x1 = min(max(np.int64(boxes[i, 0]), 0), width)
-        y1 = min(max(np.int64(boxes[i, 1]), 0), height)
-        x2 = min(max(np.int64(boxes[i, 2]), 0), width)
-        y2 = min(max(np.int64(boxes[i, 3]), 0), height)
-        if x2 <= x1 or y2 <= y1:
-            continue
-        weight = np.float64(weights[i])
-        diff[y1, x1] += weight
-        diff[y1, x2] -= weight
-        diff[y2, x1] -= weight
-        diff[y2, x2] += weight
-
-    # column_sum[x] holds the prefix sum over all rows so far of the row-wise
-    # prefix sums, i.e. the full 2-D prefix sum at (y, x); this fuses both
-    # prefix-sum directions into one pass and touches `diff` exactly once.
-    column_sum = np.zeros(width, dtype=np.float64)
-    for y in range(height):
-        row_sum = 0.0
-        for x in range(width):
-            row_sum += diff[y, x]
-            column_sum[x] += row_sum
-            heat[y, x] += np.float32(column_sum[x])
+    for r in range(row_starts.size - 1):
+        for y in range(row_starts[r], row_starts[r + 1]):
+            for c in range(col_starts.size - 1):
+                value = cells[r, c]
+                for x in range(col_starts[c], col_starts[c + 1]):
+                    heat[y, x] += value
 
 
 @numba.njit(cache=True)
@@ -143,6 +272,7 @@ def accumulate_heat(boxes, weights, height, width):
     See Also
     --------
     accumulate_heat_into : Same accumulation onto an existing map.
+    heat_cells : The piecewise-constant heat without the pixels.
 
     Examples
     --------
@@ -152,6 +282,59 @@ def accumulate_heat(boxes, weights, height, width):
     array([[1. , 1. , 0. ],
            [1. , 1.5, 0.5]], dtype=float32)
     """
-    heat = np.zeros((height, width), dtype=np.float32)
-    accumulate_heat_into(heat, boxes, weights)
+    row_starts, col_starts, cells = heat_cells(boxes, weights, 0, 0, height, width)
+    heat = np.empty((height, width), dtype=np.float32)
+    _paint(heat, row_starts, col_starts, cells)
     return heat
+
+
+@numba.njit(cache=True)
+def box_heat_region(boxes, weights, width, height):
+    """Heat of weighted boxes over their bounding region within a frame.
+
+    Parameters
+    ----------
+    boxes : numpy.ndarray
+        Integer array of shape ``(N, 4)``, rows ``[x1, y1, x2, y2]`` in frame
+        pixels, exclusive ends.
+    weights : numpy.ndarray
+        float32 array of shape ``(N,)``.
+    width, height : int
+        Frame size.
+
+    Returns
+    -------
+    heat : numpy.ndarray
+        float32 array of shape ``(y1 - y0, x1 - x0)``: ``accumulate_heat`` of
+        the boxes shifted by ``-(x0, y0)``, where ``x0, y0`` are the smallest
+        box starts and ``x1, y1`` the largest box ends, clipped to the frame;
+        ``(0, 0)`` for no boxes.
+    x0, y0 : int
+        Origin of the region in the frame.
+
+    Raises
+    ------
+    ValueError
+        If the region is empty in a way that gives a negative shape (every
+        box beyond the frame), or the arguments have the wrong shapes.
+    """
+    n_boxes = boxes.shape[0]
+    if boxes.shape[1] != 4:
+        raise ValueError("boxes must have shape (N, 4)")
+    if n_boxes == 0:
+        return np.zeros((0, 0), dtype=np.float32), 0, 0
+    x0, y0 = np.int64(boxes[0, 0]), np.int64(boxes[0, 1])
+    x1, y1 = np.int64(boxes[0, 2]), np.int64(boxes[0, 3])
+    for i in range(1, n_boxes):
+        x0 = min(x0, np.int64(boxes[i, 0]))
+        y0 = min(y0, np.int64(boxes[i, 1]))
+        x1 = max(x1, np.int64(boxes[i, 2]))
+        y1 = max(y1, np.int64(boxes[i, 3]))
+    x0, y0 = max(x0, 0), max(y0, 0)
+    x1, y1 = min(x1, np.int64(width)), min(y1, np.int64(height))
+    if x1 < x0 or y1 < y0:
+        raise ValueError("negative dimensions: every box lies beyond the frame")
+    row_starts, col_starts, cells = heat_cells(boxes, weights, x0, y0, y1 - y0, x1 - x0)
+    heat = np.empty((y1 - y0, x1 - x0), dtype=np.float32)
+    _paint(heat, row_starts, col_starts, cells)
+    return heat, x0, y0

@@ -39,14 +39,19 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from numba.core import types
+from numba.extending import overload
 
 __all__ = [
     "component_boxes",
     "component_core_boxes",
     "component_max",
+    "constant_runs",
+    "heat_blobs",
     "label_components",
     "label_components_kernel",
     "split_component",
+    "split_levels",
 ]
 
 
@@ -95,14 +100,32 @@ def label_components_kernel(mask, eight_connected):
         Number of components.
     """
     height, width = mask.shape
-    labels = np.zeros((height, width), dtype=np.int32)
-    parent = np.empty(height * ((width + 1) // 2) + 1, dtype=np.int32)
+    labels = np.empty((height, width), dtype=np.int32)
+    parent = np.empty(_parent_size(height, width), dtype=np.int32)
+    count = _label_into(mask, eight_connected, labels, parent)
+    return labels, count
+
+
+@numba.njit(cache=True, inline="always")
+def _parent_size(height, width):
+    return height * ((width + 1) // 2) + 1
+
+
+@numba.njit(cache=True)
+def _label_into(mask, eight_connected, labels, parent):
+    """:func:`label_components_kernel` into given buffers; returns the count.
+
+    ``labels`` is ``mask``'s shape (any content), ``parent`` has at least
+    ``_parent_size(*mask.shape)`` entries.
+    """
+    height, width = mask.shape
     parent[0] = 0
     next_label = 1
 
     for y in range(height):
         for x in range(width):
             if not mask[y, x]:
+                labels[y, x] = 0
                 continue
             up = labels[y - 1, x] if y > 0 else 0
             left = labels[y, x - 1] if x > 0 else 0
@@ -158,7 +181,7 @@ def label_components_kernel(mask, eight_connected):
     for y in range(height):
         for x in range(width):
             labels[y, x] = parent[labels[y, x]]
-    return labels, count
+    return count
 
 
 def label_components(mask, connectivity):
@@ -435,3 +458,278 @@ def split_component(heat, mask, levels, min_width, min_height, connectivity):
                 _include(whole, 0, x, y)
     _zero_unused(whole)
     return whole
+
+
+# -- heat blobs on the grid of constant cells ----------------------------------
+
+
+def _bits(values):
+    """``values`` (float32 or float64) viewed as unsigned integers of its size."""
+    raise NotImplementedError("only callable from jitted code")
+
+
+@overload(_bits, inline="always")
+def _bits_overload(values):
+    if values.dtype == types.float32:
+        return lambda values: values.view(np.uint32)
+    if values.dtype == types.float64:
+        return lambda values: values.view(np.uint64)
+    return None
+
+
+@numba.njit(cache=True)
+def constant_runs(bits):
+    """Runs of identical adjacent rows and of identical adjacent columns.
+
+    A heat map made of boxes is piecewise constant: it only changes at box
+    edges.  Cutting it where a row (column) differs from the one before it
+    gives a grid of cells on each of which every pixel is the same.
+
+    Parameters
+    ----------
+    bits : numpy.ndarray
+        2-D unsigned-integer array of shape ``(H, W)``: the map's bit
+        patterns (e.g. a float32 map viewed as uint32), so that "identical"
+        means identical bits (``-0.0`` and ``0.0`` differ, equal NaNs match).
+
+    Returns
+    -------
+    row_starts : numpy.ndarray
+        int64 array ``(R + 1,)``: the first row of each run of identical
+        rows, then ``H``.  Row ``y`` of a run equals row ``row_starts[i]``.
+    col_starts : numpy.ndarray
+        int64 array ``(C + 1,)``: the first column of each run of columns
+        identical over all rows, then ``W``.
+    """
+    height, width = bits.shape
+    row_starts = np.empty(height + 1, dtype=np.int64)
+    n_rows = 0
+    for y in range(height):
+        if y > 0:
+            differs = False
+            for x in range(width):
+                differs |= bits[y, x] != bits[y - 1, x]
+            if not differs:
+                continue
+        row_starts[n_rows] = y
+        n_rows += 1
+    row_starts[n_rows] = height
+    # Columns only need comparing on one row per run: the others are copies.
+    new_column = np.zeros(width + 1, dtype=np.bool_)
+    new_column[0] = True
+    for run in range(n_rows):
+        y = row_starts[run]
+        for x in range(1, width):
+            if bits[y, x] != bits[y, x - 1]:
+                new_column[x] = True
+    n_cols = 0
+    col_starts = np.empty(width + 1, dtype=np.int64)
+    for x in range(width):
+        if new_column[x]:
+            col_starts[n_cols] = x
+            n_cols += 1
+    col_starts[n_cols] = width
+    return row_starts[:n_rows + 1], col_starts[:n_cols + 1]
+
+
+@numba.njit(cache=True)
+def _splits(values, mask, row_units, col_units, levels, min_width, min_height,
+            eight_connected):
+    """Whether :func:`split_component` would split this blob (some level gives 2+ car-sized parts).
+
+    The same decision as :func:`split_component` on the expanded image, made
+    on a compressed one: cell ``(i, j)`` stands for the units
+    ``[row_units[i], row_units[i + 1]) x [col_units[j], col_units[j + 1])``,
+    all alike.  Labelling commutes with the expansion (cells touch exactly
+    where their units do), so the parts are unions of cells and their boxes
+    follow from the cells' unit bounds.
+    """
+    height, width = values.shape
+    above = np.empty((height, width), dtype=np.uint8)
+    labels = np.empty((height, width), dtype=np.int32)
+    parent = np.empty(_parent_size(height, width), dtype=np.int32)
+    for level_index in range(levels.size):
+        level = levels[level_index]
+        for i in range(height):
+            for j in range(width):
+                above[i, j] = 1 if (mask[i, j] and values[i, j] > level) else 0
+        count = _label_into(above, eight_connected, labels, parent)
+        if count < 2:
+            if count == 0:
+                break
+            continue
+        parts = component_boxes(labels, count)
+        big = 0
+        for k in range(count):
+            if (col_units[parts[k, 2]] - col_units[parts[k, 0]] >= min_width
+                    and row_units[parts[k, 3]] - row_units[parts[k, 1]] >= min_height):
+                big += 1
+        if big >= 2:
+            return True
+    return False
+
+
+@numba.njit(cache=True, inline="always")
+def _samples(starts, first, last, index0, step):
+    """Which cells the sampled units ``first, first + step, ... < last`` fall in.
+
+    Consecutive samples in one cell are merged.  Returns the cells and the
+    first sample number of each (then the sample count).
+    """
+    n_samples = (last - first + step - 1) // step
+    cells = np.empty(n_samples, dtype=np.int64)
+    units = np.empty(n_samples + 1, dtype=np.int64)
+    n = 0
+    cell = index0
+    for sample in range(n_samples):
+        position = first + sample * step
+        while starts[cell + 1] <= position:
+            cell += 1
+        if n == 0 or cells[n - 1] != cell:
+            cells[n] = cell
+            units[n] = sample
+            n += 1
+    units[n] = n_samples
+    return cells[:n], units[:n + 1]
+
+
+@numba.njit(cache=True)
+def split_levels(peak, threshold64, fractions):
+    """Thresholds at which a blob is split, as ``heat_components`` computes them.
+
+    ``float32(threshold64 + float64(peak - float32(threshold64)) * fractions)``:
+    NumPy's ``(threshold + (peak - threshold) * fractions).astype(float32)``
+    for a float32 ``peak``, a Python float ``threshold`` and float64
+    ``fractions`` (the subtraction is float32 under NumPy 2 promotion).
+    """
+    rise = np.float64(np.float32(peak) - np.float32(threshold64))
+    levels = np.empty(fractions.size, dtype=np.float32)
+    for index in range(fractions.size):
+        levels[index] = np.float32(threshold64 + rise * fractions[index])
+    return levels
+
+
+@numba.njit(cache=True)
+def heat_blobs(heat, origin_x, origin_y, threshold, eight_connected, refine, core_fraction,
+               split_size, probe_step, level_fractions):
+    """Threshold, label and measure the blobs of a heat map in one pass.
+
+    The same as labelling ``heat > threshold`` at full resolution
+    (:func:`label_components`), reducing the labels with
+    :func:`component_max` and :func:`component_boxes` or
+    :func:`component_core_boxes`, and running the sub-sampled split probe
+    (:func:`split_component` on every ``probe_step``-th pixel of a large
+    blob), but done on the grid of constant cells (:func:`constant_runs`)
+    covering the above-threshold heat.  Cells are exact stand-ins for their
+    pixels: a cell's pixels are all alike, cells touch (also diagonally)
+    exactly where their pixels do, and the first pixel of a component in
+    raster order is the first pixel of its first cell in raster order, so
+    components, their numbering, maxima and boxes all agree.
+
+    Parameters
+    ----------
+    heat : numpy.ndarray
+        2-D float32 or float64 array ``(H, W)``, any layout.
+    origin_x, origin_y : int
+        Added to the returned boxes (the map's position in the frame).
+    threshold : float
+        Foreground is ``heat > threshold``, compared in ``heat``'s precision
+        (as NumPy compares an array with a Python float); the split levels
+        are derived from it by :func:`split_levels`.
+    eight_connected : bool
+        8- (True) or 4-connectivity.
+    refine : bool
+        Return each blob's core box (its pixels whose heat is at least
+        ``peak * core_fraction``, in float32) instead of its whole box.
+    core_fraction : numpy.float32
+        See ``refine``.
+    split_size : int
+        Smallest car side in pixels.  A blob at least twice that wide or
+        tall is probed; negative: nothing is probed.
+    probe_step : int
+        Sub-sampling of the probe; a car is ``max(1, split_size //
+        probe_step)`` samples.
+    level_fractions : numpy.ndarray
+        float64 fractions passed to :func:`split_levels`.
+
+    Returns
+    -------
+    boxes : numpy.ndarray
+        int32 ``(n, 4)`` ``[x1, y1, x2, y2]`` (exclusive ends) plus the
+        origin, blobs numbered like :func:`label_components`.
+    peaks : numpy.ndarray
+        float32 ``(n,)`` maximum heat of each blob.
+    probed : numpy.ndarray
+        bool ``(n,)``: the probe split the blob into car-sized parts.
+    n_probed : int
+        How many blobs did.
+    """
+    threshold64 = np.float64(threshold)
+    # The threshold rounded to heat's type, as an array assignment rounds it.
+    typed = np.empty(1, dtype=heat.dtype)
+    typed[0] = threshold64
+    threshold = typed[0]
+    all_rows, all_cols = constant_runs(_bits(heat))
+    # Cells above the threshold, and their bounding box: only it is labelled.
+    top, bottom, left, right = all_rows.size, -1, all_cols.size, -1
+    for i in range(all_rows.size - 1):
+        y = all_rows[i]
+        for j in range(all_cols.size - 1):
+            if heat[y, all_cols[j]] > threshold:
+                top = min(top, i)
+                bottom = max(bottom, i)
+                left = min(left, j)
+                right = max(right, j)
+    if bottom < 0:
+        top, bottom, left, right = 0, -1, 0, -1
+    row_starts = all_rows[top:bottom + 2]
+    col_starts = all_cols[left:right + 2]
+    n_rows, n_cols = bottom + 1 - top, right + 1 - left
+    values = np.empty((n_rows, n_cols), dtype=heat.dtype)
+    mask = np.empty((n_rows, n_cols), dtype=np.uint8)
+    for i in range(n_rows):
+        for j in range(n_cols):
+            value = heat[row_starts[i], col_starts[j]]
+            values[i, j] = value
+            mask[i, j] = 1 if value > threshold else 0
+    labels, count = label_components_kernel(mask, eight_connected)
+
+    cell_boxes = component_boxes(labels, count)
+    peaks = component_max(labels, count, values)
+    probed = np.zeros(count, dtype=np.bool_)
+    n_probed = 0
+    if split_size >= 0:
+        probe_size = max(1, split_size // probe_step)
+        for k in range(count):
+            x1, x2 = col_starts[cell_boxes[k, 0]], col_starts[cell_boxes[k, 2]]
+            y1, y2 = row_starts[cell_boxes[k, 1]], row_starts[cell_boxes[k, 3]]
+            if max(x2 - x1, y2 - y1) < 2 * split_size:
+                continue
+            # The probe's sub-sampled image, runs of samples in one cell merged.
+            sample_rows, row_units = _samples(row_starts, y1, y2, cell_boxes[k, 1], probe_step)
+            sample_cols, col_units = _samples(col_starts, x1, x2, cell_boxes[k, 0], probe_step)
+            sub_values = np.empty((sample_rows.size, sample_cols.size), dtype=heat.dtype)
+            sub_mask = np.empty((sample_rows.size, sample_cols.size), dtype=np.uint8)
+            for i in range(sample_rows.size):
+                for j in range(sample_cols.size):
+                    sub_values[i, j] = values[sample_rows[i], sample_cols[j]]
+                    sub_mask[i, j] = 1 if labels[sample_rows[i], sample_cols[j]] == k + 1 else 0
+            probed[k] = _splits(sub_values, sub_mask, row_units, col_units,
+                                split_levels(peaks[k], threshold64, level_fractions),
+                                probe_size, probe_size, eight_connected)
+            n_probed += probed[k]
+
+    if refine:
+        core = np.empty(count, dtype=np.float32)
+        for k in range(count):
+            core[k] = peaks[k] * core_fraction
+        cell_boxes = component_core_boxes(labels, count, values, core)
+    # An empty core box ([0, 0, 0, 0] in cells) becomes an empty box at the
+    # corner of the labelled cells, as at full resolution on the cropped map.
+    boxes = np.empty((count, 4), dtype=np.int32)
+    for k in range(count):
+        boxes[k, 0] = col_starts[cell_boxes[k, 0]] + origin_x
+        boxes[k, 1] = row_starts[cell_boxes[k, 1]] + origin_y
+        boxes[k, 2] = col_starts[cell_boxes[k, 2]] + origin_x
+        boxes[k, 3] = row_starts[cell_boxes[k, 3]] + origin_y
+    return boxes, peaks, probed, n_probed
