@@ -23,7 +23,10 @@ import math
 
 import numba
 import numpy as np
-from numba import njit, prange, uint64
+from llvmlite import ir
+from numba import njit, prange, types, uint64
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 # A gradient whose cross product with a bin boundary is below this fraction of
 # its magnitude is re-binned with the exact atan2 rule.  float32 rounding of
@@ -439,6 +442,10 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
 
 def _u8_cells(image, ppc_y, ppc_x, nbins, parallel, cells_y, cells_x, layout, out_flat):
     bin_lut = _bin_lut(nbins)
+    if (not parallel and (ppc_y, ppc_x, nbins) == _FAST_PPC + (_FAST_NBINS,)
+            and image.shape[2] in _FAST_CHANNELS and _fast_rule_ok()):
+        _cell_rows_u8_fast(image, 0, cells_y, bin_lut, cells_x, layout, out_flat)
+        return
     if parallel:
         bands = min(numba.get_num_threads(), cells_y)
         _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, cells_y,
@@ -466,3 +473,333 @@ def _output(out, shape):
         raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}, "
                          f"got {out.dtype} {out.shape}")
     return out
+
+
+# -- single-thread fast path: per-bin accumulators in vector registers --------
+#
+# For the default configuration (nbins 9, 8x8 cells, 1 or 3 channels) a cell
+# row is processed in groups of _GROUP_CELLS cells (G = 2 * 8 * C elements of
+# the flat row, whole 16-lane vectors).  For each 16-element piece of a group,
+# one block of LLVM vector IR walks the cell row's 8 image rows, computes the
+# gradients, the exact float32 magnitude and the orientation bin of 16 elements
+# at once, and adds the magnitude into one of nbins vector accumulators with a
+# masked add; the accumulators stay in registers for the 8 rows.  Afterwards
+# constant shuffles sum the lanes of each (cell, channel) (a fixed tree over
+# the cell's pixels) and the block stores nbins x cells x C sums.  This
+# replaces the per-element table lookup and memory scatter of the general
+# uint8 path.  Cells that do not fill a whole group are done one element at a
+# time with the lookup table.
+#
+# The bin comes from a rule, not the table: with ax = |gx|, ay = |gy| and
+# t_k = float32(tan(k * 180 / nbins deg)), k' = number of k (1 .. nbins // 2)
+# with ay >= float32(ax * t_k); the bin is nbins - 1 - k' if gx * gy < 0, else
+# k'.  It is checked against orientation_lut over every integer gradient
+# before first use (_fast_rule_ok); if it ever disagreed, the table path runs.
+
+_FAST_NBINS = 9
+_FAST_PPC = (8, 8)
+_FAST_CHANNELS = (1, 3)
+_GROUP_CELLS = 2
+_LANES = 16
+
+
+def _fast_thresholds(nbins):
+    """float32 tangents of the bin boundaries below 90 degrees (odd nbins)."""
+    return [float(np.float32(math.tan(math.radians(180.0 / nbins * k))))
+            for k in range(1, (nbins - 1) // 2 + 1)]
+
+
+def threshold_bins(gx, gy, nbins):
+    """Orientation bins of integer gradient arrays by the threshold rule.
+
+    ``nbins`` must be odd.  Equals ``orientation_lut(nbins)`` for every integer
+    gradient of a uint8 image except (0, 0), whose magnitude is zero (see
+    :func:`_fast_rule_ok`).
+    """
+    gx = np.asarray(gx, dtype=np.int64)
+    gy = np.asarray(gy, dtype=np.int64)
+    ax, ay = np.abs(gx).astype(np.float32), np.abs(gy).astype(np.float32)
+    k = np.zeros(np.broadcast(gx, gy).shape, dtype=np.int64)
+    for t in _fast_thresholds(nbins):
+        # float32 product, as the vector kernel computes it.
+        k += ay >= ax * np.float32(t)
+    obtuse = gx * gy < 0
+    return np.where(obtuse, nbins - 1 - k, k)
+
+
+@functools.lru_cache(maxsize=None)
+def _fast_rule_ok(nbins=_FAST_NBINS):
+    """Whether the threshold rule reproduces orientation_lut(nbins) exactly."""
+    g = np.arange(-255, 256)
+    gy, gx = np.meshgrid(g, g, indexing="ij")
+    rule = threshold_bins(gx, gy, nbins).ravel()
+    lut = orientation_lut(nbins).astype(np.int64)
+    nonzero = ((gx != 0) | (gy != 0)).ravel()
+    return bool(np.array_equal(rule[nonzero], lut[nonzero]))
+
+
+def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
+    """An intrinsic ``block(flat, height, row_bytes, y0, x0, scratch)``.
+
+    Adds up, for the _GROUP_CELLS cells whose elements start at flat-row offset
+    ``x0`` in image rows ``y0 .. y0 + ppc_y - 1``, the gradient magnitude per
+    (bin, cell, channel) and stores the sums to
+    ``scratch[(b * _GROUP_CELLS + cell) * channels + c]``.  ``first``: the group
+    starts at the row's first pixel (gx = 0 there, nothing read before it);
+    ``last``: it ends with the row's last pixel.  Otherwise the block reads
+    ``channels`` bytes either side of the group.
+    """
+    group = _GROUP_CELLS * ppc_x * channels
+    assert group % _LANES == 0 and channels < _LANES
+    pieces = group // _LANES
+    thresholds = _fast_thresholds(nbins)
+    outputs = _GROUP_CELLS * channels
+
+    def codegen(context, builder, signature, args):
+        i8, i32, i64, f32 = ir.IntType(8), ir.IntType(32), ir.IntType(64), ir.FloatType()
+        bytes_t = ir.VectorType(i8, _LANES)
+        ints_t = ir.VectorType(i32, _LANES)
+        floats_t = ir.VectorType(f32, _LANES)
+        mask_t = lambda n: ir.VectorType(i32, n)  # noqa: E731
+        data = context.make_array(signature.args[0])(context, builder, args[0]).data
+        scratch = context.make_array(signature.args[5])(context, builder, args[5]).data
+        height, row_bytes, y0, x0 = [context.cast(builder, v, t, types.int64)
+                                     for v, t in zip(args[1:5], signature.args[1:5])]
+        sqrt = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(floats_t, [floats_t]), "llvm.sqrt.v16f32")
+
+        def splat(value, vtype=ints_t):
+            return ir.Constant(vtype, [value] * vtype.count)
+
+        def load(offset):
+            pointer = builder.bitcast(builder.gep(data, [offset]), bytes_t.as_pointer())
+            return builder.load(pointer, align=1, typ=bytes_t)
+
+        def widen(v):
+            return builder.zext(v, ints_t)
+
+        fma = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(floats_t, [floats_t] * 3), "llvm.fma.v16f32")
+        fabs = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(floats_t, [floats_t]), "llvm.fabs.v16f32")
+        zero64, one = ir.Constant(i64, 0), ir.Constant(i64, 1)
+        last_row = builder.sub(height, one)
+        zero_i = splat(0)
+        zero_f = splat(0.0, floats_t)
+        c_off = ir.Constant(i64, channels)
+        undef_b = ir.Constant(bytes_t, ir.Undefined)
+        sums = [[] for _ in range(nbins)]
+        for piece in range(pieces):
+            head = first and piece == 0
+            tail = last and piece == pieces - 1
+            # One loop over the cell row's image rows; the accumulators are phis.
+            before = builder.block
+            loop = builder.append_basic_block(f"piece{piece}")
+            after = builder.append_basic_block(f"piece{piece}_done")
+            builder.branch(loop)
+            builder.position_at_end(loop)
+            r = builder.phi(i64)
+            r.add_incoming(zero64, before)
+            phis = []
+            for _ in range(nbins):
+                phi = builder.phi(floats_t)
+                phi.add_incoming(zero_f, before)
+                phis.append(phi)
+            y = builder.add(y0, r)
+            interior = builder.and_(builder.icmp_signed(">", y, zero64),
+                                    builder.icmp_signed("<", y, last_row))
+            shift = ir.Constant(i64, piece * _LANES)
+            base = builder.add(builder.add(builder.mul(y, row_bytes), x0), shift)
+            up = builder.sub(base, builder.select(interior, row_bytes, zero64))
+            down = builder.add(base, builder.select(interior, row_bytes, zero64))
+            here = load(base) if head or tail else None
+            if head:
+                left = builder.shuffle_vector(here, undef_b, ir.Constant(
+                    mask_t(_LANES), [0] * channels + list(range(_LANES - channels))))
+            else:
+                left = load(builder.sub(base, c_off))
+            if tail:
+                right = builder.shuffle_vector(here, undef_b, ir.Constant(
+                    mask_t(_LANES), list(range(channels, _LANES)) + [_LANES - 1] * channels))
+            else:
+                right = load(builder.add(base, c_off))
+            gx = builder.sub(widen(right), widen(left))
+            if head or tail:
+                keep = [not ((head and j < channels) or (tail and j >= _LANES - channels))
+                        for j in range(_LANES)]
+                gx = builder.select(ir.Constant(ir.VectorType(ir.IntType(1), _LANES),
+                                                [int(k) for k in keep]), gx, zero_i)
+            gy = builder.sub(widen(load(down)), widen(load(up)))
+            fx = builder.sitofp(gx, floats_t)
+            fy = builder.sitofp(gy, floats_t)
+            # Exact: gx * gx + gy * gy < 2**24.
+            magnitude = builder.call(sqrt, [builder.call(fma, [fx, fx, builder.fmul(fy, fy)])])
+            ax = builder.call(fabs, [fx])
+            ay = builder.call(fabs, [fy])
+            # The conditions are monotone in k, so the last one that holds
+            # gives k'.
+            k = zero_i
+            for count, t in enumerate(thresholds, 1):
+                past = builder.fcmp_ordered(">=", ay, builder.fmul(ax, splat(t, floats_t)))
+                k = builder.select(past, splat(count), k)
+            # gx * gy is exact; a zero product (gx = 0 or gy = 0) counts as
+            # not obtuse, which changes nothing for gx = 0: k' is the middle bin.
+            obtuse = builder.fcmp_ordered("<", builder.fmul(fx, fy), zero_f)
+            b = builder.select(obtuse, builder.sub(splat(nbins - 1), k), k)
+            acc = []
+            for bin_ in range(nbins):
+                hit = builder.icmp_signed("==", b, splat(bin_))
+                acc.append(builder.select(hit, builder.fadd(phis[bin_], magnitude), phis[bin_]))
+            r_next = builder.add(r, one)
+            r.add_incoming(r_next, builder.block)
+            for phi, value in zip(phis, acc):
+                phi.add_incoming(value, builder.block)
+            builder.cbranch(builder.icmp_signed("<", r_next, ir.Constant(i64, ppc_y)), loop, after)
+            builder.position_at_end(after)
+            for bin_ in range(nbins):
+                sums[bin_].append(acc[bin_])
+
+        # Lane (cell, pixel, channel) of a group vector is
+        # (cell * ppc_x + pixel) * channels + channel.
+        def concat(vectors):
+            while len(vectors) > 1:
+                n = vectors[0].type.count
+                pairs = []
+                for i in range(0, len(vectors), 2):
+                    a = vectors[i]
+                    b = vectors[i + 1] if i + 1 < len(vectors) else a
+                    pairs.append(builder.shuffle_vector(a, b, ir.Constant(mask_t(2 * n),
+                                                                          list(range(2 * n)))))
+                vectors = pairs
+            return vectors[0]
+
+        for bin_ in range(nbins):
+            v = concat(sums[bin_])
+            width = ppc_x
+            while width > 1:
+                half = (width + 1) // 2
+                zeros = ir.Constant(v.type, [0.0] * v.type.count)
+                lanes_a, lanes_b = [], []
+                for cell in range(_GROUP_CELLS):
+                    for p in range(half):
+                        for c in range(channels):
+                            lanes_a.append((cell * width + p) * channels + c)
+                            lanes_b.append((cell * width + p + half) * channels + c
+                                           if p + half < width else v.type.count)
+                a = builder.shuffle_vector(v, zeros, ir.Constant(mask_t(len(lanes_a)), lanes_a))
+                b = builder.shuffle_vector(v, zeros, ir.Constant(mask_t(len(lanes_b)), lanes_b))
+                v = builder.fadd(a, b)
+                width = half
+            out_t = ir.VectorType(f32, outputs)
+            pointer = builder.bitcast(
+                builder.gep(scratch, [ir.Constant(i64, bin_ * outputs)]), out_t.as_pointer())
+            builder.store(v, pointer, align=4)
+        return context.get_dummy_value()
+
+    def block(typingctx, flat, height, row_bytes, y0, x0, scratch):
+        return types.void(flat, height, row_bytes, y0, x0, scratch), codegen
+
+    block.__name__ = block.__qualname__ = (
+        f"_group_block_c{channels}_{'f' if first else ''}{'l' if last else ''}")
+    return intrinsic(block)
+
+
+_block3 = _group_block(3, 8, 8, 9, False, False)
+_block3_f = _group_block(3, 8, 8, 9, True, False)
+_block3_l = _group_block(3, 8, 8, 9, False, True)
+_block3_fl = _group_block(3, 8, 8, 9, True, True)
+_block1 = _group_block(1, 8, 8, 9, False, False)
+_block1_f = _group_block(1, 8, 8, 9, True, False)
+_block1_l = _group_block(1, 8, 8, 9, False, True)
+_block1_fl = _group_block(1, 8, 8, 9, True, True)
+
+
+@njit(cache=True)
+def _scalar_cells(flat, height, row_bytes, channels, y0, ppc_y, ppc_x, cx0, cx1, nbins, bin_lut,
+                  acc):
+    """Gradient-magnitude sums of cells cx0 .. cx1 - 1 of one cell row, one
+    element at a time: acc[((cx - cx0) * channels + c) * (nbins + 1) + bin]."""
+    acc[:] = 0.0
+    c64 = uint64(channels)
+    rb = uint64(row_bytes)
+    start = uint64(cx0 * ppc_x) * c64
+    stop = uint64(cx1 * ppc_x) * c64
+    for y in range(y0, y0 + ppc_y):
+        interior = y > 0 and y < height - 1
+        mid = uint64(y) * rb
+        up = mid - rb if interior else mid
+        down = mid + rb if interior else mid
+        for j in range(start, stop):
+            gy = np.int32(flat[down + j]) - np.int32(flat[up + j])
+            gx = np.int32(0)
+            if j >= c64 and j + c64 < rb:
+                gx = np.int32(flat[mid + j + c64]) - np.int32(flat[mid + j - c64])
+            index = (gy + 255) * _GRAD_SPAN + (gx + 255)
+            e = j - start
+            slot = ((e // c64 // uint64(ppc_x)) * c64 + e % c64) * uint64(nbins + 1)
+            acc[slot + uint64(bin_lut[uint64(index)])] += np.sqrt(np.float32(gx * gx + gy * gy))
+
+
+@njit(cache=True)
+def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out):
+    """Cell rows ``first`` .. ``stop - 1`` of the default configuration
+    (nbins 9, 8x8 cells, 1 or 3 channels); same results as :func:`_cell_rows_u8`
+    up to float32 summation order."""
+    height, width, channels = image.shape
+    flat = image.reshape(image.size)
+    nbins = _FAST_NBINS
+    ppc_y, ppc_x = _FAST_PPC
+    row_bytes = width * channels
+    group = _GROUP_CELLS * ppc_x * channels
+    groups = ncx // _GROUP_CELLS
+    outputs = _GROUP_CELLS * channels
+    scratch = np.empty(nbins * outputs, dtype=np.float32)
+    rest = ncx - groups * _GROUP_CELLS
+    acc = np.empty(max(rest, 1) * channels * (nbins + 1), dtype=np.float32)
+    scale = np.float32(1.0 / (ppc_y * ppc_x))
+    c64 = uint64(channels)
+    for cell_row in range(first, stop):
+        y0 = cell_row * ppc_y
+        row_base = uint64(cell_row) * layout[0]
+        for g in range(groups):
+            x0 = g * group
+            head = x0 == 0
+            tail = x0 + group == row_bytes
+            if channels == 3:
+                if head and tail:
+                    _block3_fl(flat, height, row_bytes, y0, x0, scratch)
+                elif head:
+                    _block3_f(flat, height, row_bytes, y0, x0, scratch)
+                elif tail:
+                    _block3_l(flat, height, row_bytes, y0, x0, scratch)
+                else:
+                    _block3(flat, height, row_bytes, y0, x0, scratch)
+            else:
+                if head and tail:
+                    _block1_fl(flat, height, row_bytes, y0, x0, scratch)
+                elif head:
+                    _block1_f(flat, height, row_bytes, y0, x0, scratch)
+                elif tail:
+                    _block1_l(flat, height, row_bytes, y0, x0, scratch)
+                else:
+                    _block1(flat, height, row_bytes, y0, x0, scratch)
+            for cell in range(uint64(_GROUP_CELLS)):
+                cx = uint64(g * _GROUP_CELLS) + cell
+                position = (cx % layout[4]) * layout[5] + cx // layout[4]
+                for c in range(c64):
+                    dest = row_base + position * layout[1] + c * layout[2]
+                    src = cell * c64 + c
+                    for b in range(uint64(nbins)):
+                        out[dest + b * layout[3]] = scratch[b * uint64(outputs) + src] * scale
+        if rest > 0:
+            cx0 = groups * _GROUP_CELLS
+            _scalar_cells(flat, height, row_bytes, channels, y0, ppc_y, ppc_x, cx0, ncx, nbins,
+                          bin_lut, acc)
+            for k in range(uint64(rest)):
+                cx = uint64(cx0) + k
+                position = (cx % layout[4]) * layout[5] + cx // layout[4]
+                for c in range(c64):
+                    dest = row_base + position * layout[1] + c * layout[2]
+                    base = (k * c64 + c) * uint64(nbins + 1)
+                    for b in range(uint64(nbins)):
+                        out[dest + b * layout[3]] = acc[base + b] * scale

@@ -1,0 +1,180 @@
+"""The single-thread uint8 fast path of ``cell_histograms`` (nbins 9, 8x8
+cells, 1 or 3 channels: vector accumulators, threshold bin rule) against the
+general lookup-table path and a naive numpy reference."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from fastdet.kernels import hog
+from fastdet.kernels.hog import cell_histograms, orientation_lut, threshold_bins
+from naive import naive_cell_histograms
+
+PHASE = dict(phase_step=4, phase_pad=2)
+
+
+def table_path(image, **kwargs):
+    """cell_histograms with the fast path switched off (the lookup-table path)."""
+    saved = hog._FAST_CHANNELS
+    hog._FAST_CHANNELS = ()
+    try:
+        return cell_histograms(image, (8, 8), 9, **kwargs)
+    finally:
+        hog._FAST_CHANNELS = saved
+
+
+def fast_path(image, **kwargs):
+    calls = []
+    original = hog._cell_rows_u8_fast
+
+    def spy(*args):
+        calls.append(args)
+        return original(*args)
+
+    hog._cell_rows_u8_fast = spy
+    try:
+        result = cell_histograms(image, (8, 8), 9, **kwargs)
+    finally:
+        hog._cell_rows_u8_fast = original
+    cells = (image.shape[0] // 8) * (image.shape[1] // 8)
+    assert calls or cells == 0, "the fast path was not taken"
+    return result
+
+
+def assert_close(fast, table):
+    assert fast.shape == table.shape
+    scale = max(1.0, float(np.abs(table).max(initial=0.0)))
+    np.testing.assert_allclose(fast, table, rtol=0, atol=2e-6 * scale)
+
+
+def gradients():
+    g = np.arange(-255, 256)
+    gy, gx = np.meshgrid(g, g, indexing="ij")
+    return gx, gy
+
+
+def test_threshold_rule_equals_the_table_for_every_integer_gradient():
+    gx, gy = gradients()
+    rule = threshold_bins(gx, gy, 9).ravel()
+    lut = orientation_lut(9).astype(np.int64)
+    nonzero = ((gx != 0) | (gy != 0)).ravel()
+    assert nonzero.sum() == 511 * 511 - 1
+    np.testing.assert_array_equal(rule[nonzero], lut[nonzero])
+    assert hog._fast_rule_ok(9)
+
+
+def test_integer_threshold_rule_equals_the_table():
+    """The LUT-free integer rule (thresholds round(tan * 2**20)) agrees too."""
+    gx, gy = gradients()
+    ax, ay = np.abs(gx), np.abs(gy)
+    k = np.zeros_like(gx)
+    thresholds = [round(math.tan(math.radians(20 * i)) * 2**20) for i in range(1, 5)]
+    assert thresholds == [381650, 879860, 1816187, 5946770]
+    for t in thresholds:
+        k += (ay << 20) >= ax * t
+    obtuse = ((gx ^ gy) < 0) & (gy != 0)
+    rule = np.where(obtuse, 8 - k, k).ravel()
+    nonzero = ((gx != 0) | (gy != 0)).ravel()
+    np.testing.assert_array_equal(rule[nonzero], orientation_lut(9)[nonzero])
+
+
+def test_a_wrong_threshold_is_caught():
+    """The check that guards the fast path can fail."""
+    gx, gy = gradients()
+    good = hog._fast_thresholds(9)
+    bad = list(good)
+    bad[1] = float(np.float32(bad[1]) * np.float32(0.999))
+    saved = hog._fast_thresholds
+    hog._fast_thresholds = lambda nbins: bad
+    try:
+        rule = threshold_bins(gx, gy, 9).ravel()
+        accepted = hog._fast_rule_ok.__wrapped__(9)
+    finally:
+        hog._fast_thresholds = saved
+    nonzero = ((gx != 0) | (gy != 0)).ravel()
+    assert not np.array_equal(rule[nonzero], orientation_lut(9)[nonzero])
+    assert not accepted
+
+
+SHAPES = [(8, 8), (8, 16), (9, 15), (16, 16), (17, 33), (24, 48), (24, 56), (8, 40),
+          (40, 47), (64, 64), (23, 100), (31, 129), (7, 64), (64, 7), (1, 1), (3, 200)]
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+@pytest.mark.parametrize("shape", SHAPES)
+@pytest.mark.parametrize("layout", ["standard", "phase"])
+def test_fast_path_matches_table_path_random(channels, shape, layout):
+    rng = np.random.default_rng(hash((channels, shape, layout)) % 2**32)
+    image = rng.integers(0, 256, shape + (channels,), dtype=np.uint8)
+    kwargs = PHASE if layout == "phase" else {}
+    assert_close(fast_path(image, **kwargs), table_path(image, **kwargs))
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+@pytest.mark.parametrize("shape", [(17, 33), (24, 48), (40, 47), (64, 64)])
+def test_fast_path_matches_naive(channels, shape):
+    rng = np.random.default_rng(7)
+    image = rng.integers(0, 256, shape + (channels,), dtype=np.uint8)
+    expected = naive_cell_histograms(image, (8, 8), 9)
+    assert_close(fast_path(image), expected.astype(np.float32))
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_fast_path_extreme_gradients(channels):
+    """Checkerboards of 0 / 255 give gradients of +-255 on both axes."""
+    yy, xx = np.mgrid[:40, :51]
+    image = np.where((yy // 1 + xx // 2) % 2, 255, 0).astype(np.uint8)
+    image = np.repeat(image[:, :, None], channels, axis=2)
+    image[:, :, 0] = image[:, :, 0][::-1]
+    for kwargs in ({}, PHASE):
+        assert_close(fast_path(image, **kwargs), table_path(image, **kwargs))
+
+
+@pytest.fixture(scope="module")
+def frame_hls():
+    image = cv2.imread("/work/shared/data/test_images/test1.jpg")
+    if image is None:
+        pytest.fail("cannot read /work/shared/data/test_images/test1.jpg", pytrace=False)
+    return np.ascontiguousarray(cv2.cvtColor(image, cv2.COLOR_BGR2HLS))
+
+
+@pytest.mark.parametrize("layout", ["standard", "phase"])
+def test_fast_path_matches_table_path_on_a_real_frame(frame_hls, layout):
+    kwargs = PHASE if layout == "phase" else {}
+    scaled = np.ascontiguousarray(cv2.resize(frame_hls[360:540], (1697, 225)))
+    for image in (frame_hls, scaled, np.ascontiguousarray(frame_hls[:, :, 1:2]),
+                  np.ascontiguousarray(frame_hls[3:172, 5:605])):
+        assert_close(fast_path(image, **kwargs), table_path(image, **kwargs))
+
+
+def test_fast_path_matches_naive_on_a_real_crop(frame_hls):
+    image = np.ascontiguousarray(frame_hls[400:465, 300:437])
+    assert_close(fast_path(image), naive_cell_histograms(image, (8, 8), 9).astype(np.float32))
+
+
+def test_fast_path_fills_a_dirty_out_buffer():
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 256, (33, 70, 3), dtype=np.uint8)
+    out = np.full((4, 8, 3, 9), np.nan, np.float32)
+    fast_path(image, out=out)
+    assert_close(out, table_path(image))
+
+
+def test_other_configurations_take_the_table_path():
+    rng = np.random.default_rng(4)
+    image = rng.integers(0, 256, (32, 32, 2), dtype=np.uint8)
+    called = []
+    original = hog._cell_rows_u8_fast
+    hog._cell_rows_u8_fast = lambda *args: called.append(args)
+    try:
+        cell_histograms(image, (8, 8), 9)
+        cell_histograms(image[:, :, :1].copy(), (8, 8), 8)
+        cell_histograms(image[:, :, :1].copy(), (6, 8), 9)
+        cell_histograms(image[:, :, :1].copy(), (8, 8), 9, parallel=True)
+    finally:
+        hog._cell_rows_u8_fast = original
+    assert not called
