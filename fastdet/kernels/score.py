@@ -189,6 +189,20 @@ def _axpy(weight, src, s0, count, dst, d0):
         dst[d0 + i] += weight * src[s0 + i]
 
 
+@njit(cache=True, fastmath=_FASTMATH)
+def _axpy4(weights, w0, src, s0, stride, count, dst):
+    """dst += sum over q < 4 of weights[w0 + q] * src[s0 + q * stride:][:count]."""
+    a = weights[w0]
+    b = weights[w0 + uint64(1)]
+    c = weights[w0 + uint64(2)]
+    d = weights[w0 + uint64(3)]
+    s1 = s0 + stride
+    s2 = s1 + stride
+    s3 = s2 + stride
+    for i in range(uint64(count)):
+        dst[i] += a * src[s0 + i] + b * src[s1 + i] + c * src[s2 + i] + d * src[s3 + i]
+
+
 @njit(cache=True)
 def _shift_runs(dx, step, per_phase):
     """Runs ``(dest, src, count)`` mapping block positions to their cell ``bx + dx``.
@@ -284,9 +298,17 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
                 # scores: short sums keep float32 rounding near a plain dot's.
                 for c in range(channels):
                     partial[:] = 0.0
-                    for f in range(uint64(c * per_channel), uint64((c + 1) * per_channel)):
+                    f = uint64(c * per_channel)
+                    stop = uint64((c + 1) * per_channel)
+                    # Four features per pass: a quarter of the passes over partial.
+                    while f + uint64(4) <= stop:
+                        _axpy4(weights_flat, w_base + f, normalised, f * positions + offset,
+                               positions, cols_out, partial)
+                        f += uint64(4)
+                    while f < stop:
                         _axpy(weights_flat[w_base + f], normalised, f * positions + offset,
                               cols_out, partial, uint64(0))
+                        f += uint64(1)
                     if norm_code == 3:
                         _add_scaled_run(partial, second, uint64(c) * positions + offset,
                                         out_flat, uint64(iy * cols_out), cols_out)
