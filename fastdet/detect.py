@@ -23,12 +23,11 @@ from .config import DetectorConfig
 from .detections import Detections
 from .errors import InputError
 from .features import WINDOW, color_planes, histogram_bin_lut, hog_input
-from .kernels.blocks import normalize_blocks
 from .kernels.heat import box_heat_region
 from .kernels.hog import cell_histograms, phase_layout_shape
 from .kernels.label import component_boxes, heat_blobs, label_components, split_component
 from .kernels.colour import colour_maps
-from .kernels.score import (add_hog_scores, add_hog_scores_from_phase_cells, add_spatial_scores,
+from .kernels.score import (add_hog_scores_from_phase_cells, add_spatial_scores,
                             add_tile_window_sums, window_count)
 from .model import Model, load_model
 
@@ -241,28 +240,21 @@ class Detector:
         return plans
 
     # -- stage 1: windows ---------------------------------------------------
-    def _buffers(self, plan):
-        """Cell and block arrays of a scale, reused from frame to frame.
+    def _cells_buffer(self, plan):
+        """The phase-layout cell array of a scale, reused from frame to frame.
 
         Fresh multi-megabyte arrays every frame would cost page faults;
-        callers get the arrays back filled, so the reuse is invisible.  The
-        block map is only materialised on the multi-threaded path.
+        callers get the array back filled, so the reuse is invisible.
         """
-        buffers = self._workspace.get((plan.scaled_size, plan.step_cells))
-        if buffers is None:
+        key = (plan.scaled_size, plan.step_cells)
+        cells = self._workspace.get(key)
+        if cells is None:
             o = self._options
-            ppc, cpb, channels = o.pixels_per_cell, o.cells_per_block, self._hog_channels
-            cells_y, cells_x = plan.scaled_size[1] // ppc, plan.scaled_size[0] // ppc
-            blocks = None
-            if self._parallel:
-                blocks = np.empty((cells_y - cpb + 1, cells_x - cpb + 1,
-                                   channels * cpb * cpb * o.orientations), np.float32)
-                cells = np.empty((cells_y, cells_x, channels, o.orientations), np.float32)
-            else:
-                cells = np.empty(phase_layout_shape(cells_y, cells_x, channels, o.orientations,
-                                                    plan.step_cells, cpb), np.float32)
-            buffers = self._workspace[(plan.scaled_size, plan.step_cells)] = (cells, blocks)
-        return buffers
+            cells = self._workspace[key] = np.empty(phase_layout_shape(
+                plan.scaled_size[1] // o.pixels_per_cell, plan.scaled_size[0] // o.pixels_per_cell,
+                self._hog_channels, o.orientations, plan.step_cells, o.cells_per_block),
+                np.float32)
+        return cells
 
     def prepare(self, frame):
         """Colour-convert the part of a frame any scale searches, once.
@@ -309,26 +301,17 @@ class Detector:
         step_px = plan.step_cells * options.pixels_per_cell
         if options.use_hog:
             ppc, cpb = options.pixels_per_cell, options.cells_per_block
-            cells_buffer, blocks_buffer = self._buffers(plan)
-            hog_image = hog_input(converted, grey, options)
-            if self._parallel:
-                cells = cell_histograms(hog_image, (ppc, ppc), options.orientations,
-                                        parallel=True, out=cells_buffer)
-                t2 = time.perf_counter()
-                blocks = normalize_blocks(cells, (cpb, cpb), options.block_norm, parallel=True,
-                                          out=blocks_buffer)
-                add_hog_scores(blocks, self._hog_weights, plan.step_cells, scores, parallel=True)
-            else:
-                # One thread: cells in the phase layout of the window step, so
-                # each block row is normalised and scored along whole rows,
-                # never writing the block map to memory.
-                cells = cell_histograms(hog_image, (ppc, ppc), options.orientations,
-                                        out=cells_buffer, phase_step=plan.step_cells,
-                                        phase_pad=cpb)
-                t2 = time.perf_counter()
-                add_hog_scores_from_phase_cells(cells, plan.scaled_size[0] // ppc, (cpb, cpb),
-                                                options.block_norm, self._hog_weights,
-                                                plan.step_cells, scores)
+            # Cells in the phase layout of the window step, so each block row
+            # is normalised and scored along whole rows, never writing the
+            # block map to memory; with threads, bands of rows run in parallel.
+            cells = cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
+                                    options.orientations, parallel=self._parallel,
+                                    out=self._cells_buffer(plan), phase_step=plan.step_cells,
+                                    phase_pad=cpb)
+            t2 = time.perf_counter()
+            add_hog_scores_from_phase_cells(cells, plan.scaled_size[0] // ppc, (cpb, cpb),
+                                            options.block_norm, self._hog_weights,
+                                            plan.step_cells, scores, parallel=self._parallel)
             timings["cells"] += t2 - t1
             t1 = time.perf_counter()
             timings["blocks_score"] += t1 - t2

@@ -174,7 +174,18 @@ def test_other_configurations_take_the_table_path():
         cell_histograms(image, (8, 8), 9)
         cell_histograms(image[:, :, :1].copy(), (8, 8), 8)
         cell_histograms(image[:, :, :1].copy(), (6, 8), 9)
-        cell_histograms(image[:, :, :1].copy(), (8, 8), 9, parallel=True)
     finally:
         hog._cell_rows_u8_fast = original
     assert not called
+
+
+@pytest.mark.parametrize("layout", ["standard", "phase"])
+def test_parallel_fast_path_equals_serial(layout):
+    rng = np.random.default_rng(5)
+    image = rng.integers(0, 256, (203, 331, 3), dtype=np.uint8)
+    extra = {"phase_step": 4, "phase_pad": 2} if layout == "phase" else {}
+    serial = cell_histograms(image, (8, 8), 9, **extra)
+    parallel = cell_histograms(image, (8, 8), 9, parallel=True, **extra)
+    np.testing.assert_array_equal(parallel, serial)
+    assert_close(serial if layout == "standard" else cell_histograms(image, (8, 8), 9),
+                 table_path(image))

@@ -180,3 +180,21 @@ def test_phase_scores_reject_mismatched_inputs():
     with pytest.raises(ValueError, match="do not fit"):
         add_hog_scores_from_phase_cells(phase, 20, (2, 2), "L2", np.ones((7, 7, 108), np.float32),
                                         2, np.zeros((9, 1), np.float32))
+
+
+@pytest.mark.parametrize("norm", ["L2-Hys", "L1"])
+@pytest.mark.parametrize("step", [1, 2, 4])
+def test_parallel_phase_scores_equal_serial(norm, step):
+    rng = np.random.default_rng(step)
+    cells = rng.random((41, 57, 3, 9), dtype=np.float32)
+    weights = rng.normal(size=(7, 7, 108)).astype(np.float32)
+    phase = to_phase_layout(cells, step, 2)
+    grid = (window_count(40, 7, step), window_count(56, 7, step))
+    serial = np.zeros(grid, np.float32)
+    parallel = np.zeros(grid, np.float32)
+    add_hog_scores_from_phase_cells(phase, 57, (2, 2), norm, weights, step, serial)
+    add_hog_scores_from_phase_cells(phase, 57, (2, 2), norm, weights, step, parallel,
+                                    parallel=True)
+    np.testing.assert_array_equal(parallel, serial)
+    np.testing.assert_allclose(serial, naive_scores(cells, (2, 2), norm, weights, step),
+                               rtol=1e-5, atol=2e-5)

@@ -442,12 +442,15 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
 
 def _u8_cells(image, ppc_y, ppc_x, nbins, parallel, cells_y, cells_x, layout, out_flat):
     bin_lut = _bin_lut(nbins)
-    if (not parallel and (ppc_y, ppc_x, nbins) == _FAST_PPC + (_FAST_NBINS,)
-            and image.shape[2] in _FAST_CHANNELS and _fast_rule_ok()):
+    fast = ((ppc_y, ppc_x, nbins) == _FAST_PPC + (_FAST_NBINS,)
+            and image.shape[2] in _FAST_CHANNELS and _fast_rule_ok())
+    bands = min(numba.get_num_threads(), cells_y) if parallel else 1
+    if fast and bands > 1:
+        _cell_histograms_u8_fast_parallel(image, bin_lut, bands, cells_y, cells_x, layout,
+                                          out_flat)
+    elif fast:
         _cell_rows_u8_fast(image, 0, cells_y, bin_lut, cells_x, layout, out_flat)
-        return
-    if parallel:
-        bands = min(numba.get_num_threads(), cells_y)
+    elif bands > 1:
         _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, cells_y,
                                      cells_x, layout, out_flat)
     else:
@@ -803,3 +806,11 @@ def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out):
                     base = (k * c64 + c) * uint64(nbins + 1)
                     for b in range(uint64(nbins)):
                         out[dest + b * layout[3]] = acc[base + b] * scale
+
+
+@njit(cache=True, parallel=True)
+def _cell_histograms_u8_fast_parallel(image, bin_lut, bands, rows, ncx, layout, out):
+    # One contiguous band of cell rows per thread, as in the table path.
+    for band in prange(bands):
+        _cell_rows_u8_fast(image, band * rows // bands, (band + 1) * rows // bands, bin_lut, ncx,
+                           layout, out)

@@ -16,6 +16,7 @@ Window ``(iy, ix)`` has its top-left pixel at ``(iy * step_px, ix * step_px)``
 of the scale's image (``step_px`` = cells per step x pixels per cell).
 """
 
+import numba
 import numpy as np
 from numba import njit, prange, uint64
 
@@ -226,7 +227,9 @@ def _shift_runs(dx, step, per_phase):
 
 
 @njit(cache=True)
-def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weights, step, out):
+def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weights, step, out,
+                          first_row, stop_row):
+    """Scores of window rows ``first_row`` .. ``stop_row - 1`` (a band)."""
     rows, channels, nbins, length = cells.shape
     n = weights.shape[0]
     n_features = weights.shape[2]
@@ -235,10 +238,13 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
     weights_flat = weights.reshape(weights.size)
     out_flat = out.reshape(out.size)
     rows_out, cols_out = out.shape
-    used_rows = (rows_out - 1) * step + n
-    # Per cell: the sum a block norm is built from.
+    if first_row >= stop_row:
+        return
+    first_block = first_row * step
+    stop_block = (stop_row - 1) * step + n
+    # Per cell of the band's block rows: the sum a block norm is built from.
     energy = np.empty(rows * channels * length, dtype=np.float32)
-    for cy in range(rows):
+    for cy in range(first_block, stop_block + cpb_y - 1):
         for c in range(channels):
             base = uint64((cy * channels + c) * nbins * length)
             _phase_energy(cells_flat, base, nbins, length, norm_code, energy,
@@ -251,7 +257,7 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
     sum_sq = np.empty(positions, dtype=np.float32)
     partial = np.empty(cols_out, dtype=np.float32)
     second = np.empty(channels * positions, dtype=np.float32)
-    for by in range(used_rows):
+    for by in range(first_block, stop_block):
         for c in range(channels):
             total[:] = 0.0
             for dy in range(cpb_y):
@@ -287,8 +293,8 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
                 # products instead of to every clipped value.
                 _inverse_norm(sum_sq, positions, 2, eps, second[c * positions:])
         # Window rows iy whose n block rows include ``by``.
-        first = max(0, (by - n + step) // step)
-        last = min(rows_out - 1, by // step)
+        first = max(first_row, (by - n + step) // step)
+        last = min(stop_row - 1, by // step)
         for iy in range(first, last + 1):
             r = by - iy * step
             for s in range(n):
@@ -316,8 +322,19 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
                         _add_run(partial, uint64(0), out_flat, uint64(iy * cols_out), cols_out)
 
 
+@njit(cache=True, parallel=True)
+def _add_hog_scores_phase_parallel(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weights, step,
+                                   out, bands):
+    # Bands of window rows write disjoint score rows; block rows on a band
+    # edge are normalised by both bands.
+    rows_out = out.shape[0]
+    for band in prange(bands):
+        _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weights, step, out,
+                              band * rows_out // bands, (band + 1) * rows_out // bands)
+
+
 def add_hog_scores_from_phase_cells(cells, cells_x, cells_per_block, norm, weights, step_cells,
-                                    out, eps=EPS):
+                                    out, eps=EPS, parallel=False):
     """Normalise blocks and add every window's HOG score, one block row at a time.
 
     Equivalent to :func:`fastdet.kernels.blocks.normalize_blocks` followed by
@@ -342,6 +359,8 @@ def add_hog_scores_from_phase_cells(cells, cells_x, cells_per_block, norm, weigh
     out : ndarray of float32, shape (Ny, Nx)
         Score grid, added to in place.
     eps : float
+    parallel : bool
+        Spread bands of window rows over Numba's threads.
     """
     cpb_y, cpb_x = int(cells_per_block[0]), int(cells_per_block[1])
     n, _, length = weights.shape
@@ -357,8 +376,13 @@ def add_hog_scores_from_phase_cells(cells, cells_x, cells_per_block, norm, weigh
     _check_fits(out, blocks_shape, (n, n), step_cells)
     if out.size == 0:
         return
-    _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, NORM_CODES[norm], float(eps),
-                          weights, int(step_cells), out)
+    args = (cells, per_phase, cpb_y, cpb_x, NORM_CODES[norm], float(eps), weights,
+            int(step_cells), out)
+    bands = min(numba.get_num_threads(), out.shape[0]) if parallel else 1
+    if bands > 1:
+        _add_hog_scores_phase_parallel(*args, bands)
+    else:
+        _add_hog_scores_phase(*args, 0, out.shape[0])
 
 
 def add_spatial_scores(spatial, weights, step_px, out, parallel=False):
