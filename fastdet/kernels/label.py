@@ -503,6 +503,8 @@ def constant_runs(bits):
     """
     height, width = bits.shape
     row_starts = np.empty(height + 1, dtype=np.int64)
+    new_column = np.zeros(width + 1, dtype=np.bool_)
+    new_column[0] = True
     n_rows = 0
     for y in range(height):
         if y > 0:
@@ -513,15 +515,11 @@ def constant_runs(bits):
                 continue
         row_starts[n_rows] = y
         n_rows += 1
-    row_starts[n_rows] = height
-    # Columns only need comparing on one row per run: the others are copies.
-    new_column = np.zeros(width + 1, dtype=np.bool_)
-    new_column[0] = True
-    for run in range(n_rows):
-        y = row_starts[run]
+        # Columns only need comparing on the first row of a run (the others
+        # are copies), while it is still in cache.
         for x in range(1, width):
-            if bits[y, x] != bits[y, x - 1]:
-                new_column[x] = True
+            new_column[x] |= bits[y, x] != bits[y, x - 1]
+    row_starts[n_rows] = height
     n_cols = 0
     col_starts = np.empty(width + 1, dtype=np.int64)
     for x in range(width):
