@@ -33,6 +33,20 @@ union-find table to ``H * ceil(W / 2) + 1`` entries.
 
 ``component_boxes`` and ``component_max`` are single raster passes that
 reduce over the label image.
+
+Heat blobs
+----------
+``heat_blobs`` does the detector's whole thresholding step in one call, at
+the resolution the heat actually has.  A heat map made of boxes only changes
+at box edges, so ``constant_runs`` cuts it (by comparing bit patterns of
+adjacent rows and columns, which needs no knowledge of the boxes) into a
+grid of cells, each constant.  Labelling the cells gives exactly the pixel
+labelling: a cell's pixels are alike, two cells' pixels touch (for 4- or
+8-connectivity) exactly when the cells do, and the first pixel of a
+component in raster order is the top-left pixel of its first cell in raster
+order, so even the numbering agrees.  Maxima and (core) boxes follow from
+the cells' values and pixel bounds, and the sub-sampled split probe runs on
+the cells the samples fall in.
 """
 
 from __future__ import annotations
@@ -521,13 +535,16 @@ def constant_runs(bits):
             new_column[x] |= bits[y, x] != bits[y, x - 1]
     row_starts[n_rows] = height
     n_cols = 0
-    col_starts = np.empty(width + 1, dtype=np.int64)
+    for x in range(width):
+        n_cols += new_column[x]
+    col_starts = np.empty(n_cols + 1, dtype=np.int64)
+    n_cols = 0
     for x in range(width):
         if new_column[x]:
             col_starts[n_cols] = x
             n_cols += 1
     col_starts[n_cols] = width
-    return row_starts[:n_rows + 1], col_starts[:n_cols + 1]
+    return row_starts[:n_rows + 1], col_starts
 
 
 @numba.njit(cache=True)
