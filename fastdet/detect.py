@@ -432,16 +432,16 @@ class Detector:
                     scale = math.sqrt(frame_size[0] / ref_w * frame_size[1] / ref_h)
                 min_size = int(round(cfg.split_min_size * scale))
             params = self._heat_blob_params = (
-                self.config, frame_size, float(cfg.threshold), cfg.connectivity == 8,
-                bool(cfg.peak_fraction > 0), np.float32(cfg.peak_fraction), min_size,
-                _SPLIT_PROBE, _SPLIT_LEVELS)
-        if heat.dtype != np.float32 and heat.dtype != np.float64:
+                self.config, frame_size, np.dtype(np.float32), min_size,
+                (float(cfg.threshold), cfg.connectivity == 8, bool(cfg.peak_fraction > 0),
+                 np.float32(cfg.peak_fraction), min_size, _SPLIT_PROBE, _SPLIT_LEVELS))
+        if heat.dtype is not params[2] and heat.dtype != np.float32 and heat.dtype != np.float64:
             heat = heat.astype(np.float64)
         # One kernel thresholds and labels the heat on its grid of constant
         # cells, measures the blobs and probes which of them split.
-        boxes, peaks, probed, n_probed = heat_blobs(heat, origin[0], origin[1], *params[2:])
+        boxes, peaks, probed, n_probed = heat_blobs(heat, origin[0], origin[1], *params[4])
         if n_probed:
-            boxes, peaks = self._split_blobs(heat, origin, boxes, peaks, probed, params[6])
+            boxes, peaks = self._split_blobs(heat, origin, boxes, peaks, probed, params[3])
         return boxes, peaks
 
     def _split_blobs(self, heat, origin, boxes, peaks, probed, min_size):

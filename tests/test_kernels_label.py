@@ -471,6 +471,34 @@ def test_heat_blobs_probe_both_ways():
     # Odd probe steps and sizes: samples straddle the cells unevenly.
     for step, size in [(3, 10), (5, 20), (7, 24), (1, 30), (4, 90)]:
         assert_blobs_match(two_humps(), threshold=1.0, split_size=size, step=step)
+    # Probed because it is wide enough, although not tall enough (90 < 2 * 48).
+    assert assert_blobs_match(two_humps(), threshold=1.0, split_size=48, step=4) == (1, 1)
+
+
+def test_heat_blobs_probe_one_sample_parts():
+    # Parts one probe sample wide count as cars when a car is one sample.
+    heat = np.array([[0, 0, 0, 0, 0],
+                     [0, 2, 1, 2, 0],
+                     [0, 0, 0, 0, 0]], dtype=np.float32)
+    assert assert_blobs_match(heat, threshold=0.5, split_size=1, step=1) == (1, 1)
+    assert assert_blobs_match(heat, threshold=0.5, split_size=2, step=2) == (1, 0)
+
+
+def test_heat_blobs_threshold_is_strict():
+    # Heat exactly at the threshold is background, also in the split levels.
+    heat = np.zeros((20, 30), np.float32)
+    heat[2:18, 2:28] = 1.0
+    heat[4:16, 4:12] = 2.0
+    heat[4:16, 16:26] = 2.0
+    assert assert_blobs_match(heat, threshold=1.0) == (2, 0)
+    assert assert_blobs_match(heat, threshold=0.0, split_size=4, step=2, peak_fraction=0.5) == (1, 1)
+    # Peaks 10 and 6 joined by a saddle at exactly the level 0 + 10 * 0.5:
+    # only that level separates them, and only because the test is strict.
+    heat = np.zeros((12, 40), np.float32)
+    heat[2:10, 2:38] = 5.0
+    heat[2:10, 2:12] = 10.0
+    heat[2:10, 28:38] = 6.0
+    assert assert_blobs_match(heat, threshold=0.0, split_size=4, step=1) == (1, 1)
 
 
 @pytest.mark.parametrize("connectivity", CONNECTIVITIES)

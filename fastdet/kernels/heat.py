@@ -127,8 +127,8 @@ def heat_cells(boxes, weights, x0, y0, height, width):
     if weights.shape[0] != n_boxes:
         raise ValueError("weights must have one entry per box")
     clipped = np.empty((n_boxes, 4), dtype=np.int64)
-    col_index = np.zeros(width + 1, dtype=np.int64)
-    row_index = np.zeros(height + 1, dtype=np.int64)
+    col_index = np.zeros(width + 1, dtype=np.int32)
+    row_index = np.zeros(height + 1, dtype=np.int32)
     col_index[0] = 1
     row_index[0] = 1
     for i in range(n_boxes):

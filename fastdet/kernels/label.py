@@ -33,6 +33,20 @@ union-find table to ``H * ceil(W / 2) + 1`` entries.
 
 ``component_boxes`` and ``component_max`` are single raster passes that
 reduce over the label image.
+
+Heat blobs
+----------
+``heat_blobs`` does the detector's whole thresholding step in one call, at
+the resolution the heat actually has.  A heat map made of boxes only changes
+at box edges, so ``constant_runs`` cuts it (by comparing bit patterns of
+adjacent rows and columns, which needs no knowledge of the boxes) into a
+grid of cells, each constant.  Labelling the cells gives exactly the pixel
+labelling: a cell's pixels are alike, two cells' pixels touch (for 4- or
+8-connectivity) exactly when the cells do, and the first pixel of a
+component in raster order is the top-left pixel of its first cell in raster
+order, so even the numbering agrees.  Maxima and (core) boxes follow from
+the cells' values and pixel bounds, and the sub-sampled split probe runs on
+the cells the samples fall in.
 """
 
 from __future__ import annotations
@@ -503,6 +517,8 @@ def constant_runs(bits):
     """
     height, width = bits.shape
     row_starts = np.empty(height + 1, dtype=np.int64)
+    new_column = np.zeros(width + 1, dtype=np.bool_)
+    new_column[0] = True
     n_rows = 0
     for y in range(height):
         if y > 0:
@@ -513,23 +529,22 @@ def constant_runs(bits):
                 continue
         row_starts[n_rows] = y
         n_rows += 1
-    row_starts[n_rows] = height
-    # Columns only need comparing on one row per run: the others are copies.
-    new_column = np.zeros(width + 1, dtype=np.bool_)
-    new_column[0] = True
-    for run in range(n_rows):
-        y = row_starts[run]
+        # Columns only need comparing on the first row of a run (the others
+        # are copies), while it is still in cache.
         for x in range(1, width):
-            if bits[y, x] != bits[y, x - 1]:
-                new_column[x] = True
+            new_column[x] |= bits[y, x] != bits[y, x - 1]
+    row_starts[n_rows] = height
     n_cols = 0
-    col_starts = np.empty(width + 1, dtype=np.int64)
+    for x in range(width):
+        n_cols += new_column[x]
+    col_starts = np.empty(n_cols + 1, dtype=np.int64)
+    n_cols = 0
     for x in range(width):
         if new_column[x]:
             col_starts[n_cols] = x
             n_cols += 1
     col_starts[n_cols] = width
-    return row_starts[:n_rows + 1], col_starts[:n_cols + 1]
+    return row_starts[:n_rows + 1], col_starts
 
 
 @numba.njit(cache=True)
