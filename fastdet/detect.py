@@ -1,10 +1,11 @@
 """The single-frame detector: scales -> kernels -> heat -> boxes.
 
 Python here only plans and orchestrates.  The region any scale searches is
-colour-converted once per frame; for each search scale its region of interest
-is then resized so that the scale's window becomes 64 pixels (OpenCV); the
-Numba kernels then compute the whole region's HOG
-cells and blocks once, and score every window of the scale from those maps
+colour-converted once per frame (OpenCV); for each search scale its region of
+interest is then resized so that the scale's window becomes 64 pixels
+(:func:`fastdet.kernels.resize.resize_linear`, bit-identical to OpenCV's
+bilinear resize); the Numba kernels then compute the whole region's HOG cells
+once, and score every window of the scale from them
 (:mod:`fastdet.kernels.score`).  Hit windows are merged in a heat map over the
 hits' bounding region only, labelled, and filtered into boxes.
 """
@@ -23,10 +24,11 @@ from .config import DetectorConfig
 from .detections import Detections
 from .errors import InputError
 from .features import WINDOW, color_planes, histogram_bin_lut, hog_input
+from .kernels.colour import colour_maps
 from .kernels.heat import box_heat_region
 from .kernels.hog import cell_histograms, phase_layout_shape
 from .kernels.label import component_boxes, heat_blobs, label_components, split_component
-from .kernels.colour import colour_maps
+from .kernels.resize import resize_linear
 from .kernels.score import (add_hog_scores_from_phase_cells, add_spatial_scores,
                             add_tile_window_sums, window_count)
 from .model import Model, load_model
@@ -240,6 +242,15 @@ class Detector:
         return plans
 
     # -- stage 1: windows ---------------------------------------------------
+    def _resized_buffer(self, plan, channels):
+        """The uint8 array a scale's region is resized into, reused per frame."""
+        key = ("resized", plan.scaled_size, channels)
+        image = self._workspace.get(key)
+        if image is None:
+            width, height = plan.scaled_size
+            image = self._workspace[key] = np.empty((height, width, channels), np.uint8)
+        return image
+
     def _cells_buffer(self, plan):
         """The phase-layout cell array of a scale, reused from frame to frame.
 
@@ -289,12 +300,13 @@ class Detector:
         ox, oy = prepared.origin
         x0, y0, x1, y1 = plan.roi
         region = (slice(y0 - oy, y1 - oy), slice(x0 - ox, x1 - ox))
-        converted = cv2.resize(prepared.converted[region], plan.scaled_size,
-                               interpolation=cv2.INTER_LINEAR)
+        # Bit-identical to cv2.resize(..., INTER_LINEAR), in about half its time.
+        converted = resize_linear(prepared.converted[region], plan.scaled_size,
+                                  out=self._resized_buffer(plan, 3))
         grey = None
         if prepared.grey is not None:
-            grey = cv2.resize(prepared.grey[region], plan.scaled_size,
-                              interpolation=cv2.INTER_LINEAR)
+            grey = resize_linear(prepared.grey[region][:, :, None], plan.scaled_size,
+                                 out=self._resized_buffer(plan, 1))
         t1 = time.perf_counter()
         timings["resize_convert"] += t1 - t0
         scores = np.full(plan.grid, self.model.bias, dtype=np.float32)
