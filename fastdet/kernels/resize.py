@@ -455,39 +455,61 @@ def _find(held, source):
     return -1
 
 
-def _make_resize(horizontal):
-    def resize(src, first, second, w_first, w_second, base, usable, masks, weights,
-               block_base, picks, y_first, y_second, w_y_first, w_y_second, out):
-        # Two horizontal rows kept: consecutive output rows share source rows.
-        rows = np.empty((2, out.shape[1]), dtype=np.int16)
-        held = np.array([-1, -1], dtype=np.int64)
-        for dy in range(out.shape[0]):
-            upper, lower = y_first[dy], y_second[dy]
-            slot_upper = _find(held, upper)
-            slot_lower = _find(held, lower)
-            if slot_upper < 0:
-                # Never evict the row the other tap sits in.
-                slot_upper = 1 if slot_lower == 0 else 0
-                horizontal(src[upper], first, second, w_first, w_second, base, usable, masks,
-                           weights, block_base, picks, rows[slot_upper])
-                held[slot_upper] = upper
-            if slot_lower < 0:
-                if lower == upper:
-                    slot_lower = slot_upper
-                else:
-                    slot_lower = 1 - slot_upper
-                    horizontal(src[lower], first, second, w_first, w_second, base, usable,
-                               masks, weights, block_base, picks, rows[slot_lower])
-                    held[slot_lower] = lower
-            _vertical(rows[slot_upper], rows[slot_lower], w_y_first[dy], w_y_second[dy], out[dy])
-
-    return resize
+#: What this machine can run, fixed at import.  They are compile-time
+#: constants of _horizontal, so the branches of paths the CPU lacks are pruned
+#: before typing (their instructions may not exist here); the cached machine
+#: code stays valid because Numba keys its cache by the host CPU.
+_CAN_AVX512BW, _CAN_AVX2, _CAN_SSSE3 = HAVE_AVX512BW, HAVE_AVX2, HAVE_SSSE3
 
 
-_resize_avx512 = njit(cache=True)(_make_resize(_horizontal_avx512))
-_resize_avx2 = njit(cache=True)(_make_resize(_horizontal_avx2))
-_resize_ssse3 = njit(cache=True)(_make_resize(_horizontal_ssse3))
-_resize_scalar = njit(cache=True)(_make_resize(_horizontal_scalar))
+@njit(cache=True)
+def _horizontal(path, row, first, second, w_first, w_second, base, usable, masks, weights,
+                block_base, picks, dest):
+    """The horizontal pass of ``path`` (0 AVX-512BW, 1 AVX2, 2 SSSE3, 3 scalar)."""
+    if _CAN_AVX512BW:
+        if path == 0:
+            _horizontal_avx512(row, first, second, w_first, w_second, base, usable, masks,
+                               weights, block_base, picks, dest)
+            return
+    if _CAN_AVX2:
+        if path <= 1:
+            _horizontal_avx2(row, first, second, w_first, w_second, base, usable, masks,
+                             weights, block_base, picks, dest)
+            return
+    if _CAN_SSSE3:
+        if path <= 2:
+            _horizontal_ssse3(row, first, second, w_first, w_second, base, usable, masks,
+                              weights, block_base, picks, dest)
+            return
+    _horizontal_scalar(row, first, second, w_first, w_second, base, usable, masks, weights,
+                       block_base, picks, dest)
+
+
+@njit(cache=True)
+def _resize(path, src, first, second, w_first, w_second, base, usable, masks, weights,
+            block_base, picks, y_first, y_second, w_y_first, w_y_second, out):
+    # Two horizontal rows kept: consecutive output rows share source rows.
+    rows = np.empty((2, out.shape[1]), dtype=np.int16)
+    held = np.array([-1, -1], dtype=np.int64)
+    for dy in range(out.shape[0]):
+        upper, lower = y_first[dy], y_second[dy]
+        slot_upper = _find(held, upper)
+        slot_lower = _find(held, lower)
+        if slot_upper < 0:
+            # Never evict the row the other tap sits in.
+            slot_upper = 1 if slot_lower == 0 else 0
+            _horizontal(path, src[upper], first, second, w_first, w_second, base, usable,
+                        masks, weights, block_base, picks, rows[slot_upper])
+            held[slot_upper] = upper
+        if slot_lower < 0:
+            if lower == upper:
+                slot_lower = slot_upper
+            else:
+                slot_lower = 1 - slot_upper
+                _horizontal(path, src[lower], first, second, w_first, w_second, base, usable,
+                            masks, weights, block_base, picks, rows[slot_lower])
+                held[slot_lower] = lower
+        _vertical(rows[slot_upper], rows[slot_lower], w_y_first[dy], w_y_second[dy], out[dy])
 
 
 def resize_linear(image, size, out=None):
@@ -531,7 +553,6 @@ def resize_linear(image, size, out=None):
         rows = np.ascontiguousarray(rows)
     x_tables = column_tables(source_w, width, channels)
     y_tables = linear_tables(source_h, height, False)
-    kernel = (_resize_avx512 if HAVE_AVX512BW else _resize_avx2 if HAVE_AVX2
-              else _resize_ssse3 if HAVE_SSSE3 else _resize_scalar)
-    kernel(rows, *x_tables, *y_tables, out.reshape(height, width * channels))
+    path = 0 if HAVE_AVX512BW else 1 if HAVE_AVX2 else 2 if HAVE_SSSE3 else 3
+    _resize(path, rows, *x_tables, *y_tables, out.reshape(height, width * channels))
     return out
