@@ -23,7 +23,8 @@ def _add_model_options(parser):
     parser.add_argument("--model", metavar="M", help="model file (.npz); default: bundled model")
     parser.add_argument("--config", metavar="C", help="TOML config overriding built-in defaults")
     parser.add_argument("--threads", type=int, metavar="T",
-                        help="threads for the kernels (default: NUMBA_NUM_THREADS, all cores)")
+                        help="threads per frame: scales are scored concurrently (default: "
+                             "NUMBA_NUM_THREADS, all cores)")
 
 
 def _detector(args):

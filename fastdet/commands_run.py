@@ -50,7 +50,8 @@ def add_run_parser(subparsers):
     run.add_argument("--config", metavar="C",
                      help="TOML config overriding built-in defaults ([track] for video settings)")
     run.add_argument("--threads", type=int, metavar="T",
-                     help="threads for the kernels (default: NUMBA_NUM_THREADS, all cores)")
+                     help="threads per frame: scales are scored concurrently (default: "
+                          "NUMBA_NUM_THREADS, all cores)")
     run.add_argument("--start", type=int, default=0, metavar="F",
                      help="first frame to process (frames count from 0)")
     run.add_argument("--end", type=int, metavar="F", help="stop before frame F")

@@ -13,7 +13,9 @@ hits' bounding region only, labelled, and filtered into boxes.
 from __future__ import annotations
 
 import math
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -188,10 +190,13 @@ class Detector:
     config : DetectorConfig, optional
         Search, heat and box settings; defaults built in.
     threads : int, optional
-        Threads for the Numba kernels.  ``None`` keeps Numba's setting
-        (``NUMBA_NUM_THREADS``, all cores by default); 1 runs the serial
-        kernels.  OpenCV is set to the same count so the two thread pools
-        do not oversubscribe the cores.
+        Threads per frame.  ``None`` keeps Numba's setting
+        (``NUMBA_NUM_THREADS``, all cores by default); 1 runs everything on
+        the calling thread.  With more, the search scales of a frame are
+        scored concurrently by a pool of that many threads (the kernels
+        release the GIL), each scale on one thread: a scale's kernels are
+        too short to split well.  OpenCV, which converts the frame's colours,
+        is set to the same count so the two do not oversubscribe the cores.
 
     Notes
     -----
@@ -218,7 +223,8 @@ class Detector:
             numba.set_num_threads(threads)
             cv2.setNumThreads(threads)
         self.threads = numba.get_num_threads() if threads is None else threads
-        self._parallel = self.threads > 1
+        self._pool = None
+        self._timings_lock = threading.Lock()
         options = model.options
         self._options = options
         hog_w, spatial_w, hist_w = model.split_weights()
@@ -231,8 +237,21 @@ class Detector:
         self._plans = {}
         self._workspace = {}
         self._hog_channels = model.layout.hog_channels
-        #: Seconds spent per stage (see ``STAGES``) in the last call.
+        #: Seconds spent per stage (see ``STAGES``) in the last call; with
+        #: several threads, the scales' stage times are summed over threads.
         self.timings = dict.fromkeys(STAGES, 0.0)
+
+    def __del__(self):
+        pool = getattr(self, "_pool", None)
+        if pool is not None:
+            pool.shutdown(wait=False)
+
+    def _scale_pool(self):
+        """The thread pool that scores scales concurrently (threads > 1)."""
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=self.threads,
+                                            thread_name_prefix="fastdet-scale")
+        return self._pool
 
     def plans(self, frame_size):
         """The scale plans for frames of ``(width, height)`` (cached)."""
@@ -244,7 +263,8 @@ class Detector:
     # -- stage 1: windows ---------------------------------------------------
     def _resized_buffer(self, plan, channels):
         """The uint8 array a scale's region is resized into, reused per frame."""
-        key = ("resized", plan.scaled_size, channels)
+        # Keyed by the plan: scales scored concurrently never share a buffer.
+        key = ("resized", id(plan), channels)
         image = self._workspace.get(key)
         if image is None:
             width, height = plan.scaled_size
@@ -257,7 +277,7 @@ class Detector:
         Fresh multi-megabyte arrays every frame would cost page faults;
         callers get the array back filled, so the reuse is invisible.
         """
-        key = (plan.scaled_size, plan.step_cells)
+        key = ("cells", id(plan))
         cells = self._workspace.get(key)
         if cells is None:
             o = self._options
@@ -284,7 +304,7 @@ class Detector:
         converted, grey = color_planes(frame[y0:y1, x0:x1], self._options)
         return PreparedFrame(converted, grey, (x0, y0))
 
-    def score_scale(self, prepared, plan):
+    def score_scale(self, prepared, plan, timings=None):
         """SVM margins of every window of one scale, shape ``plan.grid``.
 
         Parameters
@@ -293,9 +313,11 @@ class Detector:
             From :meth:`prepare`.
         plan : ScalePlan
             One of :meth:`plans` for the frame's size.
+        timings : dict, optional
+            Stage seconds are added here (default: :attr:`timings`).
         """
         options = self._options
-        timings = self.timings
+        timings = self.timings if timings is None else timings
         t0 = time.perf_counter()
         ox, oy = prepared.origin
         x0, y0, x1, y1 = plan.roi
@@ -315,15 +337,14 @@ class Detector:
             ppc, cpb = options.pixels_per_cell, options.cells_per_block
             # Cells in the phase layout of the window step, so each block row
             # is normalised and scored along whole rows, never writing the
-            # block map to memory; with threads, bands of rows run in parallel.
+            # block map to memory.
             cells = cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
-                                    options.orientations, parallel=self._parallel,
-                                    out=self._cells_buffer(plan), phase_step=plan.step_cells,
-                                    phase_pad=cpb)
+                                    options.orientations, out=self._cells_buffer(plan),
+                                    phase_step=plan.step_cells, phase_pad=cpb)
             t2 = time.perf_counter()
             add_hog_scores_from_phase_cells(cells, plan.scaled_size[0] // ppc, (cpb, cpb),
                                             options.block_norm, self._hog_weights,
-                                            plan.step_cells, scores, parallel=self._parallel)
+                                            plan.step_cells, scores)
             timings["cells"] += t2 - t1
             t1 = time.perf_counter()
             timings["blocks_score"] += t1 - t2
@@ -359,8 +380,14 @@ class Detector:
         t0 = time.perf_counter()
         prepared = self.prepare(frame)
         self.timings["resize_convert"] += time.perf_counter() - t0
-        for index, plan in enumerate(self.plans((frame.shape[1], frame.shape[0]))):
-            grid = self.score_scale(prepared, plan).ravel()
+        plans = self.plans((frame.shape[1], frame.shape[0]))
+        if self.threads > 1 and len(plans) > 1:
+            grids = list(self._scale_pool().map(
+                lambda plan: self._score_scale_timed(prepared, plan), plans))
+        else:
+            grids = [self.score_scale(prepared, plan) for plan in plans]
+        for index, (plan, grid) in enumerate(zip(plans, grids)):
+            grid = grid.ravel()
             scored += grid.size
             hit = np.flatnonzero(grid > threshold)
             if hit.size:
@@ -371,6 +398,15 @@ class Detector:
             return Hits(np.zeros((0, 4), np.int32), np.zeros(0, np.float32),
                         np.zeros(0, np.int64), scored)
         return Hits(np.concatenate(boxes), np.concatenate(scores), np.concatenate(scales), scored)
+
+    def _score_scale_timed(self, prepared, plan):
+        """:meth:`score_scale` on a pool thread, its stage times added afterwards."""
+        timings = dict.fromkeys(STAGES, 0.0)
+        scores = self.score_scale(prepared, plan, timings)
+        with self._timings_lock:
+            for stage, seconds in timings.items():
+                self.timings[stage] += seconds
+        return scores
 
     def heat_weights(self, hits, frame_size):
         """Heat each hit adds, per ``heat.weighting``."""

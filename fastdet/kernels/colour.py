@@ -245,7 +245,7 @@ def _box_rows(flat, row_bytes, factor, box_flat, box_w, oy0, oy1):
         _box_pixels(flat, row_bytes, factor, scale, box_flat, box_w, oy, blocks * _BOX_BLOCK)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _colour_maps(image, lut, tile, factor, want_tiles, want_box, tiles, box):
     width = image.shape[1]
     row_bytes = width * 3

@@ -166,7 +166,7 @@ def _histogram_cell_row(image, cell_row, ppc_y, ppc_x, ncx, nbins, merge_mode,
                 row_out[cx, c, b] *= scale
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cell_histograms_serial(image, ppc_y, ppc_x, nbins, merge_mode, cos_sin, bounds, out):
     for cell_row in range(out.shape[0]):
         _histogram_cell_row(image, cell_row, ppc_y, ppc_x, out.shape[1], nbins,
@@ -274,7 +274,7 @@ def _slot_targets(ncx, ppc_x, channels, nbins):
     return target
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cell_rows_u8(image, first, stop, ppc_y, ppc_x, nbins, bin_lut, ncx, layout, out):
     """Cell rows ``first`` .. ``stop - 1`` with one set of scratch buffers."""
     channels = image.shape[2]
@@ -296,7 +296,7 @@ def _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, row
                       nbins, bin_lut, ncx, layout, out)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _standard_to_phase(cells, layout, out):
     """Copy (Hc, Wc, C, nbins) cells into the flat phase layout ``layout``."""
     rows, ncx, channels, nbins = cells.shape
@@ -743,7 +743,7 @@ def _scalar_cells(flat, height, row_bytes, channels, y0, ppc_y, ppc_x, cx0, cx1,
             acc[slot + uint64(bin_lut[uint64(index)])] += np.sqrt(np.float32(gx * gx + gy * gy))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out):
     """Cell rows ``first`` .. ``stop - 1`` of the default configuration
     (nbins 9, 8x8 cells, 1 or 3 channels); same results as :func:`_cell_rows_u8`

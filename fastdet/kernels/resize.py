@@ -485,7 +485,7 @@ def _horizontal(path, row, first, second, w_first, w_second, base, usable, masks
                        block_base, picks, dest)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _resize(path, src, first, second, w_first, w_second, base, usable, masks, weights,
             block_base, picks, y_first, y_second, w_y_first, w_y_second, out):
     # Two horizontal rows kept: consecutive output rows share source rows.

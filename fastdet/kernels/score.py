@@ -46,7 +46,7 @@ def _dot_rows(image_flat, row_len, y0, x0, weights_flat, rows, length):
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _add_grid(image2d, weights2d, step_rows, step_cols, out):
     rows, length = weights2d.shape
     image_flat = image2d.reshape(image2d.size)
@@ -226,7 +226,7 @@ def _shift_runs(dx, step, per_phase):
     return runs[:n]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weights, step, out,
                           first_row, stop_row):
     """Scores of window rows ``first_row`` .. ``stop_row - 1`` (a band)."""
@@ -406,7 +406,7 @@ def add_spatial_scores(spatial, weights, step_px, out, parallel=False):
     kernel(image2d, weights2d, step_px, step_px * channels, out)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _add_tile_window_sums(tiles, size, step, out):
     """out[iy, ix] += sum of tiles[iy*step : +size, ix*step : +size]."""
     rows, cols = tiles.shape
