@@ -414,20 +414,26 @@ class BoxHistory:
 
     def __init__(self, frames):
         self._boxes = collections.deque(maxlen=int(frames))
+        self._box = None
 
     def push(self, box):
         """Add the measurement of a new frame."""
         self._boxes.append(np.asarray(box, dtype=np.int32).copy())
+        self._box = None
 
     def replace_last(self, box):
         """Correct the current frame's measurement."""
         self._boxes[-1] = np.asarray(box, dtype=np.int32).copy()
+        self._box = None
 
     @property
     def box(self):
         """Smoothed ``[x1, y1, x2, y2]`` (int32)."""
-        mean = np.mean(self._boxes, axis=0)
-        return np.floor(mean + 0.5).astype(np.int32)
+        # Frames between detections ask again without new measurements.
+        if self._box is None:
+            mean = np.mean(self._boxes, axis=0)
+            self._box = np.floor(mean + 0.5).astype(np.int32)
+        return self._box.copy()
 
 
 # -- patch tracking -------------------------------------------------------------
