@@ -30,6 +30,7 @@ import numpy as np
 from .errors import ConfigError, InputError
 from .kernels.blocks import NORM_CODES, normalize_blocks
 from .kernels.colour import colour_maps
+from .kernels.convert import bgr_to_hls
 from .kernels.hog import cell_histograms
 
 #: Side of a training crop and of every detection window after resizing.
@@ -210,7 +211,16 @@ class FeatureLayout:
 
 
 def convert_color(image_bgr, color_space):
-    """Convert a BGR uint8 image to ``color_space`` (uint8, 3 channels)."""
+    """Convert a BGR uint8 image to ``color_space`` (uint8, 3 channels).
+
+    HLS images whose width is a multiple of 8 (the detector's 1280-pixel band,
+    64-pixel training crops) take :func:`fastdet.kernels.convert.bgr_to_hls`,
+    bit-identical to OpenCV there and about twice as fast; everything else
+    goes to ``cv2.cvtColor``.
+    """
+    if (color_space == "HLS" and image_bgr.dtype == np.uint8 and image_bgr.ndim == 3
+            and image_bgr.shape[2] == 3 and image_bgr.shape[1] % 8 == 0):
+        return bgr_to_hls(image_bgr)
     return cv2.cvtColor(image_bgr, COLOR_CODES[color_space])
 
 

@@ -12,7 +12,8 @@ from skimage.feature import hog as skimage_hog
 from fastdet.config import DetectorConfig, ScaleConfig, SearchConfig
 from fastdet.detect import Detector
 from fastdet.features import (WINDOW, FeatureLayout, FeatureOptions, color_planes,
-                              crop_features, features_of_crops, hog_blocks, hog_input)
+                              convert_color, crop_features, features_of_crops, hog_blocks,
+                              hog_input)
 from fastdet.model import Model
 
 #: Option variants (overrides of the defaults) the detector is checked with.
@@ -387,3 +388,17 @@ def test_window_scores_on_a_random_odd_sized_frame():
                                                     plan.step_cells)
                 expected = model.bias + weights @ features
                 assert abs(float(scores[iy, ix]) - expected) <= score_tolerance(model, features)
+
+
+@pytest.mark.parametrize("width", [64, 1280, 8, 13, 1283])
+@pytest.mark.parametrize("space", ["HLS", "YCrCb"])
+def test_convert_color_equals_opencv(width, space):
+    # HLS widths that are multiples of 8 take fastdet's own kernel, the rest cv2.
+    rng = np.random.default_rng(width)
+    image = rng.integers(0, 256, (37, width, 3), dtype=np.uint8)
+    expected = cv2.cvtColor(image, getattr(cv2, f"COLOR_BGR2{space}"))
+    np.testing.assert_array_equal(convert_color(image, space), expected)
+    region = rng.integers(0, 256, (20, width + 16, 3), dtype=np.uint8)[:, 8:8 + width]
+    np.testing.assert_array_equal(convert_color(region, space),
+                                  cv2.cvtColor(np.ascontiguousarray(region),
+                                               getattr(cv2, f"COLOR_BGR2{space}")))

@@ -1,5 +1,6 @@
-"""BGR to HLS conversion of uint8 images, bit-identical to OpenCV's
-``cv2.cvtColor(image, cv2.COLOR_BGR2HLS)``.
+"""BGR to HLS conversion of uint8 images, as OpenCV's
+``cv2.cvtColor(image, cv2.COLOR_BGR2HLS)``: bit-identical when the width is
+a multiple of 8 (see *Limitation*), which is when fastdet uses it.
 
 OpenCV's rule for 8-bit images, as reproduced here (all float32 unless noted;
 the tests compare every one of the 2**24 colours with OpenCV):
@@ -247,7 +248,11 @@ def _check(image, out):
 
 
 def bgr_to_hls(image, out=None):
-    """``cv2.cvtColor(image, cv2.COLOR_BGR2HLS)`` for uint8 images, bit-exact.
+    """``cv2.cvtColor(image, cv2.COLOR_BGR2HLS)`` for uint8 images.
+
+    Bit-identical to OpenCV when the width is a multiple of 8; otherwise the
+    last ``width % 8`` pixels of each 256-pixel chunk of a row may differ by
+    1 in hue for rare colours (see the module notes).
 
     Parameters
     ----------
