@@ -69,10 +69,10 @@ class BlockNormalisation:
 class WindowScoring:
     """HOG part of every 64x64 window's SVM score, step 4 cells.
 
-    ``fused`` is detection's one-thread path (cells in the phase layout of the
-    step, each block row normalised and scored at once, never writing the
-    block map); ``from_blocks`` scores a ready block map (the multi-thread
-    path, here on one thread).
+    ``fused`` is the detector's path (cells in the phase layout of the step,
+    each block row normalised and scored at once, never writing the block
+    map); ``from_blocks`` scores a ready block map (``add_hog_scores``, for
+    comparison).
     """
 
     params = (list(SIZES),)

@@ -29,12 +29,15 @@ from .features import WINDOW, color_planes, histogram_bin_lut, hog_input
 from .kernels.colour import colour_maps
 from .kernels.heat import box_heat_region
 from .kernels.hog import cell_histograms, phase_layout_shape
-from .kernels.label import component_boxes, heat_blobs, label_components, split_component
+from .kernels.label import (component_boxes, heat_blobs, label_components, split_component,
+                            split_levels)
 from .kernels.resize import resize_linear
 from .kernels.score import (add_hog_scores_from_phase_cells, add_spatial_scores,
                             add_tile_window_sums, window_count)
 from .model import Model, load_model
 
+#: Work arrays kept before they are all dropped (see Detector._buffer).
+_MAX_BUFFERS = 64
 #: Sub-sampling of the cheap first pass that decides whether a heat blob splits.
 _SPLIT_PROBE = 4
 #: Fractions of the way from the heat threshold to a blob's peak at which it is split.
@@ -261,31 +264,36 @@ class Detector:
         return plans
 
     # -- stage 1: windows ---------------------------------------------------
-    def _resized_buffer(self, plan, channels):
-        """The uint8 array a scale's region is resized into, reused per frame."""
-        # Keyed by the plan: scales scored concurrently never share a buffer.
-        key = ("resized", id(plan), channels)
-        image = self._workspace.get(key)
-        if image is None:
-            width, height = plan.scaled_size
-            image = self._workspace[key] = np.empty((height, width, channels), np.uint8)
-        return image
-
-    def _cells_buffer(self, plan):
-        """The phase-layout cell array of a scale, reused from frame to frame.
+    def _buffer(self, plan, kind, shape, dtype):
+        """A scale's work array, reused from frame to frame.
 
         Fresh multi-megabyte arrays every frame would cost page faults;
-        callers get the array back filled, so the reuse is invisible.
+        callers get the array back filled, so the reuse is invisible.  Each
+        plan object has its own arrays, so scales scored concurrently never
+        share one; the plan is kept with them so that a recycled ``id`` of a
+        discarded plan is never mistaken for a live one.
         """
-        key = ("cells", id(plan))
-        cells = self._workspace.get(key)
-        if cells is None:
-            o = self._options
-            cells = self._workspace[key] = np.empty(phase_layout_shape(
-                plan.scaled_size[1] // o.pixels_per_cell, plan.scaled_size[0] // o.pixels_per_cell,
-                self._hog_channels, o.orientations, plan.step_cells, o.cells_per_block),
-                np.float32)
-        return cells
+        key = (kind, id(plan))
+        entry = self._workspace.get(key)
+        if entry is None or entry[0] is not plan:
+            if len(self._workspace) > _MAX_BUFFERS:
+                # Plans made outside plans() (e.g. by callers of score_scale).
+                self._workspace.clear()
+            entry = self._workspace[key] = (plan, np.empty(shape, dtype))
+        return entry[1]
+
+    def _resized_buffer(self, plan, channels):
+        """The uint8 array a scale's region is resized into."""
+        width, height = plan.scaled_size
+        return self._buffer(plan, ("resized", channels), (height, width, channels), np.uint8)
+
+    def _cells_buffer(self, plan):
+        """The phase-layout cell array of a scale."""
+        o = self._options
+        shape = phase_layout_shape(plan.scaled_size[1] // o.pixels_per_cell,
+                                   plan.scaled_size[0] // o.pixels_per_cell, self._hog_channels,
+                                   o.orientations, plan.step_cells, o.cells_per_block)
+        return self._buffer(plan, "cells", shape, np.float32)
 
     def prepare(self, frame):
         """Colour-convert the part of a frame any scale searches, once.
@@ -511,8 +519,8 @@ class Detector:
                 x1, y1, x2, y2 = whole[k]
                 region = heat[y1:y2, x1:x2]
                 mask = np.ascontiguousarray(labels[y1:y2, x1:x2] == k + 1)
-                levels = (cfg.threshold + (peaks[k] - cfg.threshold)
-                          * _SPLIT_LEVELS).astype(np.float32)
+                # The same levels the kernel's probe used (one definition).
+                levels = split_levels(np.float32(peaks[k]), float(cfg.threshold), _SPLIT_LEVELS)
                 parts = split_component(np.ascontiguousarray(region), mask, levels, min_size,
                                         min_size, cfg.connectivity)
                 # A seed that won no pixel yields an empty box; it is no car.

@@ -495,8 +495,12 @@ def evaluate(results, annotations, iou_threshold=0.5, difficult_cover=DIFFICULT_
     ------
     InputError
         If ``results`` names images that have no annotations (they cannot be
-        scored, and silently dropping them would flatter precision).
+        scored, and silently dropping them would flatter precision), or if
+        ``difficult_cover`` is not in (0, 1].
     """
+    if difficult_cover is not None and not 0 < difficult_cover <= 1:
+        # At 0 every false positive beside a difficult box would be ignored.
+        raise InputError(f"difficult_cover must be in (0, 1] or None, got {difficult_cover!r}")
     unannotated = sorted(set(results) - set(annotations))
     if unannotated:
         shown = ", ".join(unannotated[:5]) + (", ..." if len(unannotated) > 5 else "")

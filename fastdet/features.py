@@ -242,7 +242,7 @@ def color_planes(image_bgr, options):
 def hog_input(converted, grey, options):
     """The uint8 (H, W, C) image the HOG is computed on.
 
-    uint8 keeps the cell kernel on its exact lookup-table path (see
+    uint8 keeps the cell kernel on its exact integer-gradient paths (see
     :func:`fastdet.kernels.hog.cell_histograms`).
     """
     channel = options.hog_channel

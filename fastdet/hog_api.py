@@ -6,8 +6,9 @@ kernel tests pin it), so the kernels can serve scikit-image's public function
 directly: same arguments (the subset below), same output shape, order and
 dtype, values equal to within float32 rounding (< 1e-5).
 
-uint8 images take the kernels' exact lookup-table path; other images take
-the float path (see :func:`fastdet.kernels.hog.cell_histograms`).
+uint8 images take the kernels' exact integer-gradient paths (vector code
+for 9 bins and 8x8 cells, a lookup table otherwise); other images take the
+float path (see :func:`fastdet.kernels.hog.cell_histograms`).
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ def _output_dtype(dtype):
 def _kernel_input(image, multichannel):
     """The C-contiguous (H, W, C) array the cell kernel reads.
 
-    uint8 stays uint8 (exact lookup-table path); float32 stays float32.
+    uint8 stays uint8 (exact integer-gradient paths); float32 stays float32.
     bool becomes uint8 (0 and 1 give the same gradients as scikit-image's
     0.0 and 1.0).  float16 is widened to float32 as scikit-image does.
     Other integer types are passed as they are: the kernel converts them to
@@ -71,7 +72,7 @@ def hog(image, orientations=9, pixels_per_cell=(8, 8), cells_per_block=(2, 2),
     Parameters
     ----------
     image : ndarray, shape (M, N) or (M, N, C) with ``channel_axis``
-        Input image.  uint8 images use the exact lookup-table path.
+        Input image.  uint8 images use the exact integer-gradient paths.
     orientations : int
         Number of unsigned orientation bins over 0-180 degrees.
     pixels_per_cell : 2-tuple of int

@@ -101,18 +101,19 @@ def test_eval_prints_the_four_figures(capsys, model_path, data_dir):
         assert 0.0 <= report[key] <= 1.0
 
 
-def test_eval_voc_switch_selects_the_plain_rule(capsys, model_path, data_dir):
+def test_eval_voc_switch_selects_the_plain_rule(capsys, data_dir):
     images = data_dir / "test_images"
-    args = ["eval", str(images / "annotations.json"), str(images), "--model", str(model_path),
-            "--json", "--threads", "1"]
+    # The bundled model: it puts a box on the difficult truck of test5.
+    args = ["eval", str(images / "annotations.json"), str(images), "--json", "--threads", "1"]
     assert main(args) == 0
     default = json.loads(capsys.readouterr().out)
     assert main(args + ["--voc"]) == 0
     voc = json.loads(capsys.readouterr().out)
     assert default["difficult_cover"] == 0.5
     assert voc["difficult_cover"] is None
-    # The coverage rule only ever ignores detections VOC counts as false.
-    assert voc["fp"] >= default["fp"]
+    # The coverage rule only ever ignores detections VOC counts as false; on
+    # the test images it ignores the box on the difficult truck of test5.
+    assert voc["fp"] - default["fp"] == default["ignored"] - voc["ignored"] > 0
     assert voc["tp"] == default["tp"]
 
 

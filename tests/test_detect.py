@@ -102,22 +102,47 @@ def test_box_filter_applies_size_aspect_and_horizon(random_model):
 
 def test_threaded_and_serial_detectors_agree_exactly(data_dir):
     import cv2
+    import numba
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("NUMBA_NUM_THREADS caps the detector at one thread")
     frame = cv2.imread(str(data_dir / "test_images" / "test1.jpg"))
     serial = Detector(threads=1)
-    threaded = Detector(threads=2)
-    for _ in range(2):  # the second call reuses the scales' buffers
-        a, b = serial.hits(frame), threaded.hits(frame)
-        assert a.windows_scored == b.windows_scored > 0
-        np.testing.assert_array_equal(a.boxes, b.boxes)
-        np.testing.assert_array_equal(a.scores, b.scores)
-        np.testing.assert_array_equal(a.scale_index, b.scale_index)
-    assert len(a.scores) > 0
-    boxes_a, boxes_b = serial(frame), threaded(frame)
-    np.testing.assert_array_equal(boxes_a.xyxy, boxes_b.xyxy)
-    np.testing.assert_array_equal(boxes_a.score, boxes_b.score)
-    # The scales' stage times of every pool thread are all counted.
-    assert threaded.timings["cells"] > 0 and threaded.timings["blocks_score"] > 0
-    Detector(threads=1)  # restore the thread count for later tests
+    try:
+        threaded = Detector(threads=2)
+        assert threaded.threads == 2
+        for _ in range(2):  # the second call reuses the scales' buffers
+            a, b = serial.hits(frame), threaded.hits(frame)
+            assert a.windows_scored == b.windows_scored > 0
+            np.testing.assert_array_equal(a.boxes, b.boxes)
+            np.testing.assert_array_equal(a.scores, b.scores)
+            np.testing.assert_array_equal(a.scale_index, b.scale_index)
+        assert threaded._pool is not None  # the scales did run on the pool
+        assert len(a.scores) > 0
+        boxes_a, boxes_b = serial(frame), threaded(frame)
+        np.testing.assert_array_equal(boxes_a.xyxy, boxes_b.xyxy)
+        np.testing.assert_array_equal(boxes_a.score, boxes_b.score)
+        # The scales' stage times of every pool thread are all counted.
+        assert threaded.timings["cells"] > 0 and threaded.timings["blocks_score"] > 0
+    finally:
+        Detector(threads=1)  # restore the thread count for later tests
+
+
+def test_buffers_follow_the_plan_objects(random_model):
+    import cv2
+    detector = Detector(random_model, threads=1)
+    frame = np.random.default_rng(0).integers(0, 256, (720, 1280, 3), dtype=np.uint8)
+    small = cv2.resize(frame, (640, 360))
+    expected = {size: [detector.score_scale(detector.prepare(image), plan)
+                       for plan in detector.plans(size)]
+                for size, image in (((1280, 720), frame), ((640, 360), small))}
+    # Plans made fresh for every call (ids of dead plans get reused) still
+    # get buffers of their own size and the same scores.
+    for _ in range(3):
+        for size, image in (((1280, 720), frame), ((640, 360), small)):
+            prepared = detector.prepare(image)
+            for plan, scores in zip(plan_scales(detector.config, detector.model.options, size),
+                                    expected[size]):
+                np.testing.assert_array_equal(detector.score_scale(prepared, plan), scores)
 
 
 def test_one_scale_config_scores_only_that_scale(random_model):

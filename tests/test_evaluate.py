@@ -376,3 +376,9 @@ def test_load_annotations_structure_errors(tmp_path, content, message):
     with pytest.raises(InputError, match=message) as info:
         load_annotations(write(tmp_path, content))
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("cover", [0, -0.5, 1.5])
+def test_evaluate_rejects_a_cover_outside_zero_one(cover):
+    with pytest.raises(InputError, match="difficult_cover"):
+        evaluate({}, {"a.jpg": []}, difficult_cover=cover)

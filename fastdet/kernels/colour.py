@@ -17,7 +17,7 @@ three channels here, which the loops hard-code.  Indices are unsigned: Numba's
 negative-index wraparound would otherwise get in LLVM's way.
 
 Where the time goes (one thread, Xeon with AVX-512; about 1.4 ns per pixel
-for tile 8 and factor 2, down from 3.9):
+for tile 8 and factor 2):
 
 * Tile sums are three table lookups per pixel.  Vector gathers are slow on
   this CPU (over 1 ns per lookup), and LLVM cannot prove the table unaliased
@@ -37,9 +37,9 @@ for tile 8 and factor 2, down from 3.9):
   registers here, which lowers the core clock a little for the scalar tile
   loop as well; 256-bit versions of the block were slower overall.
 
-The box image is exact (sums of bytes, one rounding in the final scale, as
-before).  The tile sums are float32 sums in a fixed order, so they differ from
-a float64 reference, and from earlier versions, only by float32 rounding.
+The box image is exact (sums of bytes, one rounding in the final scale).  The
+tile sums are float32 sums in a fixed order, so they differ from a float64
+reference only by float32 rounding.
 """
 
 import sys
@@ -293,6 +293,10 @@ def colour_maps(image, lut=None, tile=8, factor=0):
     """
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise ValueError(f"expected a uint8 (H, W, 3) image, got {image.dtype} {image.shape}")
+    if lut is not None and np.shape(lut) != (3, 256):
+        raise ValueError(f"lut must have shape (3, 256), got {np.shape(lut)}")
+    if int(tile) < 1 or int(factor) < 0:
+        raise ValueError(f"tile must be >= 1 and factor >= 0, got {tile!r}, {factor!r}")
     image = np.ascontiguousarray(image)
     height, width = image.shape[:2]
     want_tiles = lut is not None

@@ -11,11 +11,21 @@ rounding:
 * a cell's histogram is the mean gradient magnitude per bin over its
   ``ppc_y * ppc_x`` pixels; pixels beyond the last whole cell are ignored.
 
-Instead of ``atan2`` per pixel the bin is found by counting how many bin
-boundaries the folded gradient vector lies past (a sign test of a cross
-product, branch-free and cheap).  Vectors that lie within float32 rounding of a
-boundary fall back to the exact float64 ``atan2`` rule scikit-image uses, so
-both methods agree bin for bin.
+Three paths compute the bins, each agreeing with scikit-image bin for bin:
+
+* uint8 images with 9 bins, 8x8 cells and 1 or 3 channels (the default
+  model): a block of LLVM vector code per two cells keeps the per-bin sums in
+  registers; the bin comes from comparisons with the boundaries' tangents, a
+  rule checked against the lookup table below for every integer gradient
+  before first use (sums may differ from the other paths in float32 order);
+* other uint8 images: a lookup table of the bin of every integer gradient,
+  built with scikit-image's own float64 expression, and a scattered add;
+* float images: the number of boundaries the folded gradient lies past (sign
+  tests of cross products), with the exact float64 ``atan2`` rule for vectors
+  within float32 rounding of a boundary.
+
+Cells come out as ``(Hc, Wc, C, nbins)`` or, for the detector's window
+scoring, in the *phase layout* of a window step (:func:`phase_layout_shape`).
 """
 
 import functools
@@ -397,6 +407,10 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
         phase layout of the same values).
     """
     ppc_y, ppc_x = int(pixels_per_cell[0]), int(pixels_per_cell[1])
+    if not isinstance(image, np.ndarray) or image.ndim != 3:
+        raise ValueError(f"expected an (H, W, C) image array, got {getattr(image, 'shape', image)!r}")
+    # The kernels read rows as flat runs.
+    image = np.ascontiguousarray(image)
     height, width, channels = image.shape
     out_channels = 1 if merge_channels else channels
     cells_y, cells_x = height // ppc_y, width // ppc_x
@@ -478,7 +492,7 @@ def _output(out, shape):
     return out
 
 
-# -- single-thread fast path: per-bin accumulators in vector registers --------
+# -- the vector path: per-bin accumulators in vector registers ----------------
 #
 # For the default configuration (nbins 9, 8x8 cells, 1 or 3 channels) a cell
 # row is processed in groups of _GROUP_CELLS cells (G = 2 * 8 * C elements of

@@ -60,7 +60,18 @@ _VBLOCK = 32
 
 
 def _has_feature(name):
+    """Whether the CPU Numba compiles for has ``name``.
+
+    That is the host unless ``NUMBA_CPU_NAME`` / ``NUMBA_CPU_FEATURES`` select
+    another target (portable caches, containers): then only features listed
+    in ``NUMBA_CPU_FEATURES`` count, and with a CPU name alone none do.
+    """
     if platform.machine().lower() not in ("x86_64", "amd64"):
+        return False
+    from numba.core import config
+    if config.CPU_FEATURES:
+        return f"+{name}" in config.CPU_FEATURES.split(",")
+    if config.CPU_NAME:
         return False
     try:
         from llvmlite import binding
@@ -69,7 +80,7 @@ def _has_feature(name):
         return False
 
 
-#: Whether the pshufb/pmaddwd horizontal path is used on this machine, and
+#: Whether the pshufb/pmaddwd horizontal path is used on the target CPU, and
 #: whether it does two groups per 256-bit instruction.
 HAVE_SSSE3 = _has_feature("ssse3")
 HAVE_AVX2 = HAVE_SSSE3 and _has_feature("avx2")

@@ -4,8 +4,12 @@ A window's decision value is ``bias + w_hog . hog + w_spatial . spatial +
 w_hist . hist``.  Each part is added into an ``(Ny, Nx)`` score grid by its
 own kernel, reading maps computed once per scale:
 
-* HOG: the window's ``n x n`` blocks are ``n`` contiguous runs of the block
-  map (one per block row), dotted with the matching rows of the weights;
+* HOG: from a ready block map, the window's ``n x n`` blocks are ``n``
+  contiguous runs (one per block row) dotted with the matching rows of the
+  weights (:func:`add_hog_scores`); from cells in the phase layout of the
+  window step, each block row is normalised once along the whole row and
+  added into the windows that contain it
+  (:func:`add_hog_scores_from_phase_cells`, what the detector uses);
 * spatial: likewise, ``S`` contiguous pixel rows of the box-averaged image;
 * histogram: the part is linear in the per-pixel bin indicators, so it equals
   the window sum of a per-pixel weight ``sum_c lut[c, value_c]``; windows are
@@ -428,7 +432,7 @@ def add_tile_window_sums(tiles, tiles_per_window, step_tiles, out):
     """Add each window's sum of per-tile values to ``out``.
 
     Used for the colour-histogram part of the score: ``tiles`` are the
-    per-tile weight sums of :func:`fastdet.kernels.colour.tile_weight_sums`.
+    per-tile weight sums of :func:`fastdet.kernels.colour.colour_maps`.
 
     Parameters
     ----------
