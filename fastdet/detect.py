@@ -228,6 +228,7 @@ class Detector:
         self.threads = numba.get_num_threads() if threads is None else threads
         self._pool = None
         self._timings_lock = threading.Lock()
+        self._heat_blob_params = None
         options = model.options
         self._options = options
         hog_w, spatial_w, hist_w = model.split_weights()
@@ -477,7 +478,7 @@ class Detector:
             return np.zeros((0, 4), np.int32), np.zeros(0, np.float32)
         # The kernel's settings, kept while the config and frame size stay:
         # Python work here costs more than the kernel's per-blob work.
-        params = self.__dict__.get("_heat_blob_params")
+        params = self._heat_blob_params
         if params is None or params[0] is not self.config or params[1] != frame_size:
             cfg = self.config.heat
             min_size = -1
@@ -488,16 +489,16 @@ class Detector:
                     scale = math.sqrt(frame_size[0] / ref_w * frame_size[1] / ref_h)
                 min_size = int(round(cfg.split_min_size * scale))
             params = self._heat_blob_params = (
-                self.config, frame_size, np.dtype(np.float32), min_size,
+                self.config, frame_size, min_size,
                 (float(cfg.threshold), cfg.connectivity == 8, bool(cfg.peak_fraction > 0),
                  np.float32(cfg.peak_fraction), min_size, _SPLIT_PROBE, _SPLIT_LEVELS))
-        if heat.dtype is not params[2] and heat.dtype != np.float32 and heat.dtype != np.float64:
+        if heat.dtype != np.float32 and heat.dtype != np.float64:
             heat = heat.astype(np.float64)
         # One kernel thresholds and labels the heat on its grid of constant
         # cells, measures the blobs and probes which of them split.
-        boxes, peaks, probed, n_probed = heat_blobs(heat, origin[0], origin[1], *params[4])
+        boxes, peaks, probed, n_probed = heat_blobs(heat, origin[0], origin[1], *params[3])
         if n_probed:
-            boxes, peaks = self._split_blobs(heat, origin, boxes, peaks, probed, params[3])
+            boxes, peaks = self._split_blobs(heat, origin, boxes, peaks, probed, params[2])
         return boxes, peaks
 
     def _split_blobs(self, heat, origin, boxes, peaks, probed, min_size):
