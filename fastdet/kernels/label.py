@@ -422,32 +422,10 @@ def split_component(heat, mask, levels, min_width, min_height, connectivity):
         when no level splits it into car-sized parts.
     """
     height, width = heat.shape
-    above = np.zeros((height, width), dtype=np.uint8)
-    for level_index in range(levels.size):
-        level = levels[level_index]
-        for y in range(height):
-            for x in range(width):
-                above[y, x] = 1 if (mask[y, x] and heat[y, x] > level) else 0
-        labels, count = label_components_kernel(above, connectivity == 8)
-        if count < 2:
-            if count == 0:
-                break
-            continue
-        parts = component_boxes(labels, count)
-        big = 0
-        for k in range(count):
-            if (parts[k, 2] - parts[k, 0] >= min_width
-                    and parts[k, 3] - parts[k, 1] >= min_height):
-                big += 1
-        if big < 2:
-            continue
-        seeds = np.empty((big, 4), dtype=np.int32)
-        n = 0
-        for k in range(count):
-            if (parts[k, 2] - parts[k, 0] >= min_width
-                    and parts[k, 3] - parts[k, 1] >= min_height):
-                seeds[n] = parts[k]
-                n += 1
+    seeds = _car_sized_parts(heat, mask, np.arange(height + 1), np.arange(width + 1), levels,
+                             min_width, min_height, connectivity == 8)
+    big = seeds.shape[0]
+    if big >= 2:
         out = _sentinel_boxes(big, width, height)
         for y in range(height):
             for x in range(width):
@@ -548,16 +526,21 @@ def constant_runs(bits):
 
 
 @numba.njit(cache=True)
-def _splits(values, mask, row_units, col_units, levels, min_width, min_height,
-            eight_connected):
-    """Whether :func:`split_component` would split this blob (some level gives 2+ car-sized parts).
+def _car_sized_parts(values, mask, row_units, col_units, levels, min_width, min_height,
+                     eight_connected):
+    """The car-sized parts of a blob at the lowest level that gives two or more.
 
-    The same decision as :func:`split_component` on the expanded image, made
-    on a compressed one: cell ``(i, j)`` stands for the units
+    Cell ``(i, j)`` of ``values`` / ``mask`` stands for the units
     ``[row_units[i], row_units[i + 1]) x [col_units[j], col_units[j + 1])``,
-    all alike.  Labelling commutes with the expansion (cells touch exactly
-    where their units do), so the parts are unions of cells and their boxes
-    follow from the cells' unit bounds.
+    all alike (unit steps: plain pixels).  Labelling commutes with that
+    expansion (cells touch exactly where their units do), so the parts are
+    unions of cells and their sizes follow from the cells' unit bounds.
+
+    Returns
+    -------
+    ndarray of int32, shape (n, 4)
+        Cell boxes ``[x1, y1, x2, y2]`` of the parts at least
+        ``min_width x min_height`` units; ``n`` is 0 when no level splits.
     """
     height, width = values.shape
     above = np.empty((height, width), dtype=np.uint8)
@@ -574,14 +557,22 @@ def _splits(values, mask, row_units, col_units, levels, min_width, min_height,
                 break
             continue
         parts = component_boxes(labels, count)
-        big = 0
+        car_sized = np.zeros(count, dtype=np.bool_)
         for k in range(count):
-            if (col_units[parts[k, 2]] - col_units[parts[k, 0]] >= min_width
-                    and row_units[parts[k, 3]] - row_units[parts[k, 1]] >= min_height):
-                big += 1
-        if big >= 2:
-            return True
-    return False
+            car_sized[k] = (col_units[parts[k, 2]] - col_units[parts[k, 0]] >= min_width
+                            and row_units[parts[k, 3]] - row_units[parts[k, 1]] >= min_height)
+        if np.count_nonzero(car_sized) >= 2:
+            return parts[car_sized]
+    return np.zeros((0, 4), dtype=np.int32)
+
+
+@numba.njit(cache=True)
+def _splits(values, mask, row_units, col_units, levels, min_width, min_height,
+            eight_connected):
+    """Whether :func:`split_component` would split this blob, decided on its
+    grid of constant cells (see :func:`_car_sized_parts`)."""
+    return _car_sized_parts(values, mask, row_units, col_units, levels, min_width, min_height,
+                            eight_connected).shape[0] >= 2
 
 
 @numba.njit(cache=True, inline="always")
