@@ -49,6 +49,8 @@ from llvmlite import ir
 from numba import njit, types, uint64
 from numba.extending import intrinsic
 
+from ._llvm import load_vector, store_vector
+
 _C = uint64(3)
 _BYTE = uint64(255)
 # Channel c's table starts at lut_flat[256 * c].
@@ -67,9 +69,7 @@ def _load_u32(typingctx, flat, offset):
 
     def codegen(context, builder, signature, args):
         data = context.make_array(signature.args[0])(context, builder, args[0]).data
-        word = ir.IntType(32)
-        pointer = builder.bitcast(builder.gep(data, [args[1]]), word.as_pointer())
-        return builder.load(pointer, align=1, typ=word)
+        return load_vector(builder, data, args[1], ir.IntType(32))
 
     return sig, codegen
 
@@ -105,8 +105,7 @@ def _box_block(factor):
         column = None
         for dy in range(factor):
             start = builder.add(top, builder.mul(row_bytes, ir.Constant(row_bytes.type, dy)))
-            pointer = builder.bitcast(builder.gep(flat.data, [start]), bytes_in.as_pointer())
-            row = builder.zext(builder.load(pointer, align=1, typ=bytes_in), words_in)
+            row = builder.zext(load_vector(builder, flat.data, start, bytes_in), words_in)
             column = row if column is None else builder.add(column, row)
         undef = ir.Constant(words_in, ir.Undefined)
         mask_type = ir.VectorType(i32, n_out)
@@ -116,8 +115,7 @@ def _box_block(factor):
             total = pick if total is None else builder.add(total, pick)
         floats = ir.VectorType(f32, n_out)
         mean = builder.fmul(builder.uitofp(total, floats), ir.Constant(floats, [scale] * n_out))
-        pointer = builder.bitcast(builder.gep(dest.data, [out]), floats.as_pointer())
-        builder.store(mean, pointer, align=4)
+        store_vector(builder, mean, dest.data, out, align=4)
         return context.get_dummy_value()
 
     def block(typingctx, flat, top, row_bytes, dest, out):

@@ -37,6 +37,8 @@ from llvmlite import ir
 from numba import njit, types, uint64
 from numba.extending import intrinsic
 
+from ._llvm import load_vector, store_vector
+
 #: Pixels per vector block.
 _BLOCK = 16
 _BLOCK_BYTES = 3 * _BLOCK
@@ -65,7 +67,6 @@ def _hls_block(typingctx, src, src_offset, dest, dest_offset):
         dest_a = context.make_array(signature.args[2])(context, builder, args[2])
         n = _BLOCK
         i8, i32, f32 = ir.IntType(8), ir.IntType(32), ir.FloatType()
-        bytes_in = ir.VectorType(i8, 3 * n)
         v_i32, v_f32 = ir.VectorType(i32, n), ir.VectorType(f32, n)
         fma = builder.module.declare_intrinsic(
             f"llvm.fma.v{n}f32", fnty=ir.FunctionType(v_f32, [v_f32, v_f32, v_f32]))
@@ -84,8 +85,7 @@ def _hls_block(typingctx, src, src_offset, dest, dest_offset):
         loads = []
         for start in (0, 12, 24, 32):
             offset = builder.add(args[1], ir.Constant(args[1].type, start))
-            pointer = builder.bitcast(builder.gep(src_a.data, [offset]), chunk.as_pointer())
-            loads.append(builder.load(pointer, align=1, typ=chunk))
+            loads.append(load_vector(builder, src_a.data, offset, chunk))
         low = builder.shuffle_vector(loads[0], loads[1], mask(list(range(32))))
         high = builder.shuffle_vector(loads[2], loads[3], mask(list(range(32))))
         joined = builder.shuffle_vector(low, high, mask(list(range(64))))
@@ -149,8 +149,7 @@ def _hls_block(typingctx, src, src_offset, dest, dest_offset):
         out = builder.shuffle_vector(
             packed, ir.Constant(packed.type, ir.Undefined),
             mask([4 * (k // 3) + k % 3 for k in range(3 * n)]))
-        pointer = builder.bitcast(builder.gep(dest_a.data, [args[3]]), bytes_in.as_pointer())
-        builder.store(out, pointer, align=1)
+        store_vector(builder, out, dest_a.data, args[3])
         return context.get_dummy_value()
 
     return sig, codegen

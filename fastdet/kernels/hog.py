@@ -38,6 +38,8 @@ from numba import njit, prange, types, uint64
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from ._llvm import load_vector, store_vector
+
 # A gradient whose cross product with a bin boundary is below this fraction of
 # its magnitude is re-binned with the exact atan2 rule.  float32 rounding of
 # the cross product is ~1e-7 relative; 1e-4 leaves a wide margin.
@@ -589,8 +591,7 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
             return ir.Constant(vtype, [value] * vtype.count)
 
         def load(offset):
-            pointer = builder.bitcast(builder.gep(data, [offset]), bytes_t.as_pointer())
-            return builder.load(pointer, align=1, typ=bytes_t)
+            return load_vector(builder, data, offset, bytes_t)
 
         def widen(v):
             return builder.zext(v, ints_t)
@@ -707,10 +708,7 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
                 b = builder.shuffle_vector(v, zeros, ir.Constant(mask_t(len(lanes_b)), lanes_b))
                 v = builder.fadd(a, b)
                 width = half
-            out_t = ir.VectorType(f32, outputs)
-            pointer = builder.bitcast(
-                builder.gep(scratch, [ir.Constant(i64, bin_ * outputs)]), out_t.as_pointer())
-            builder.store(v, pointer, align=4)
+            store_vector(builder, v, scratch, ir.Constant(i64, bin_ * outputs), align=4)
         return context.get_dummy_value()
 
     def block(typingctx, flat, height, row_bytes, y0, x0, scratch):

@@ -48,6 +48,8 @@ from llvmlite import ir
 from numba import njit, types, uint64
 from numba.extending import intrinsic
 
+from ._llvm import load_vector, store_vector
+
 #: OpenCV's INTER_RESIZE_COEF_SCALE (11 fractional bits).
 _COEF_SCALE = np.float32(2048)
 
@@ -193,6 +195,19 @@ def column_tables(source_width, target_width, channels):
 
 
 # -- horizontal pass ---------------------------------------------------------
+def _store_sums(builder, sums, dest, index, per_index=None):
+    """Store ``sums >> 4`` (int32 lanes) as int16 at ``dest[index * per_index]``.
+
+    ``per_index`` defaults to the lane count: block ``index`` of equal blocks.
+    """
+    lanes = sums.type.count
+    i16 = ir.IntType(16)
+    shifted = builder.ashr(sums, ir.Constant(sums.type, [4] * lanes))
+    start = builder.mul(index, ir.Constant(index.type, per_index or lanes))
+    store_vector(builder, builder.trunc(shifted, ir.VectorType(i16, lanes)), dest, start,
+                 align=2)
+
+
 @intrinsic
 def _hgroup(typingctx, row, base, masks, weights, dest, group):
     """dest[4g:4g + 4] from the 16 bytes row[base:base + 16] (caller keeps them
@@ -214,21 +229,13 @@ def _hgroup(typingctx, row, base, masks, weights, dest, group):
         pmadd = module.declare_intrinsic(
             "llvm.x86.sse2.pmadd.wd", fnty=ir.FunctionType(v4i32, [v8i16, v8i16]))
 
-        def load(array, index, vector_type):
-            pointer = builder.bitcast(builder.gep(array.data, [index]), vector_type.as_pointer())
-            return builder.load(pointer, align=1, typ=vector_type)
-
         g = builder.zext(group, ir.IntType(64)) if group.type.width < 64 else group
-        window = load(row_a, base, v16i8)
-        mask = load(masks_a, builder.mul(g, ir.Constant(g.type, 16)), v16i8)
+        window = load_vector(builder, row_a.data, base, v16i8)
+        mask = load_vector(builder, masks_a.data, builder.mul(g, ir.Constant(g.type, 16)), v16i8)
         words = builder.bitcast(builder.call(pshufb, [window, mask]), v8i16)
-        weight = load(weights_a, builder.mul(g, ir.Constant(g.type, 8)), v8i16)
+        weight = load_vector(builder, weights_a.data, builder.mul(g, ir.Constant(g.type, 8)), v8i16)
         sums = builder.call(pmadd, [words, weight])
-        sums = builder.trunc(builder.ashr(sums, ir.Constant(v4i32, [4] * 4)),
-                             ir.VectorType(i16, 4))
-        pointer = builder.bitcast(builder.gep(dest_a.data, [builder.mul(g, ir.Constant(g.type, 4))]),
-                                  ir.VectorType(i16, 4).as_pointer())
-        builder.store(sums, pointer, align=2)
+        _store_sums(builder, sums, dest_a.data, g)
         return context.get_dummy_value()
 
     return sig, codegen
@@ -256,22 +263,14 @@ def _hpair(typingctx, row, base0, base1, masks, weights, dest, group):
         pmadd = module.declare_intrinsic(
             "llvm.x86.avx2.pmadd.wd", fnty=ir.FunctionType(v8i32, [v16i16, v16i16]))
 
-        def load(array, index, vector_type):
-            pointer = builder.bitcast(builder.gep(array.data, [index]), vector_type.as_pointer())
-            return builder.load(pointer, align=1, typ=vector_type)
-
         window = builder.shuffle_vector(
-            load(row_a, args[1], v16i8), load(row_a, args[2], v16i8),
+            load_vector(builder, row_a.data, args[1], v16i8), load_vector(builder, row_a.data, args[2], v16i8),
             ir.Constant(ir.VectorType(i32, 32), list(range(32))))
-        mask = load(masks_a, builder.mul(g, ir.Constant(g.type, 16)), v32i8)
+        mask = load_vector(builder, masks_a.data, builder.mul(g, ir.Constant(g.type, 16)), v32i8)
         words = builder.bitcast(builder.call(pshufb, [window, mask]), v16i16)
-        weight = load(weights_a, builder.mul(g, ir.Constant(g.type, 8)), v16i16)
+        weight = load_vector(builder, weights_a.data, builder.mul(g, ir.Constant(g.type, 8)), v16i16)
         sums = builder.call(pmadd, [words, weight])
-        sums = builder.trunc(builder.ashr(sums, ir.Constant(v8i32, [4] * 8)),
-                             ir.VectorType(i16, 8))
-        pointer = builder.bitcast(builder.gep(dest_a.data, [builder.mul(g, ir.Constant(g.type, 4))]),
-                                  ir.VectorType(i16, 8).as_pointer())
-        builder.store(sums, pointer, align=2)
+        _store_sums(builder, sums, dest_a.data, g, per_index=4)
         return context.get_dummy_value()
 
     return sig, codegen
@@ -300,25 +299,16 @@ def _hblock(typingctx, row, base, picks, weights, dest, block):
         pmadd = module.declare_intrinsic(
             "llvm.x86.avx512.pmaddw.d.512", fnty=ir.FunctionType(v16i32, [v32i16, v32i16]))
 
-        def load(array, index, vector_type):
-            pointer = builder.bitcast(builder.gep(array.data, [index]), vector_type.as_pointer())
-            return builder.load(pointer, align=1, typ=vector_type)
-
-        words = builder.zext(load(row_a, args[1], v64i8), v64i16)
+        words = builder.zext(load_vector(builder, row_a.data, args[1], v64i8), v64i16)
         undef = ir.Constant(v64i16, ir.Undefined)
         half = ir.VectorType(i32, 32)
         low = builder.shuffle_vector(words, undef, ir.Constant(half, list(range(32))))
         high = builder.shuffle_vector(words, undef, ir.Constant(half, list(range(32, 64))))
-        index = load(picks_a, builder.mul(b, ir.Constant(b.type, 32)), v32i16)
+        index = load_vector(builder, picks_a.data, builder.mul(b, ir.Constant(b.type, 32)), v32i16)
         pairs = builder.call(permute, [low, index, high])
-        weight = load(weights_a, builder.mul(b, ir.Constant(b.type, 32)), v32i16)
+        weight = load_vector(builder, weights_a.data, builder.mul(b, ir.Constant(b.type, 32)), v32i16)
         sums = builder.call(pmadd, [pairs, weight])
-        sums = builder.trunc(builder.ashr(sums, ir.Constant(v16i32, [4] * 16)),
-                             ir.VectorType(i16, 16))
-        pointer = builder.bitcast(
-            builder.gep(dest_a.data, [builder.mul(b, ir.Constant(b.type, 16))]),
-            ir.VectorType(i16, 16).as_pointer())
-        builder.store(sums, pointer, align=2)
+        _store_sums(builder, sums, dest_a.data, b)
         return context.get_dummy_value()
 
     return sig, codegen
@@ -429,16 +419,14 @@ def _vblock(typingctx, upper, lower, w_upper, w_lower, dest, start):
             return ir.Constant(vector_type, [value] * _VBLOCK)
 
         def tap(array, weight):
-            pointer = builder.bitcast(builder.gep(array.data, [start]), halves.as_pointer())
-            h = builder.load(pointer, align=2, typ=halves)
+            h = load_vector(builder, array.data, start, halves, align=2)
             # mulhi: (sext(h) * sext(w)) >> 16, truncated back to 16 bits.
             product = builder.mul(builder.sext(h, words), builder.sext(weight, words))
             return builder.trunc(builder.ashr(product, const(words, 16)), halves)
 
         v = builder.add(tap(upper_a, splat(args[2], halves)), tap(lower_a, splat(args[3], halves)))
         v = builder.ashr(builder.add(v, const(halves, 2)), const(halves, 2))
-        pointer = builder.bitcast(builder.gep(dest_a.data, [start]), bytes_.as_pointer())
-        builder.store(builder.trunc(v, bytes_), pointer, align=1)
+        store_vector(builder, builder.trunc(v, bytes_), dest_a.data, start)
         return context.get_dummy_value()
 
     return sig, codegen
