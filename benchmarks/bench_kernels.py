@@ -17,7 +17,8 @@ from fastdet.kernels.blocks import normalize_blocks
 from fastdet.kernels.heat import accumulate_heat
 from fastdet.kernels.hog import cell_histograms
 from fastdet.kernels.label import component_boxes, label_components
-from fastdet.kernels.score import add_hog_scores, add_hog_scores_from_phase_cells, window_count
+from fastdet.kernels.score import (add_hog_scores, add_hog_scores_from_phase_cells,
+                                   phase_scoring_pad, window_count)
 
 from ._common import SIZES, test_frame
 
@@ -81,8 +82,9 @@ class WindowScoring:
     def setup(self, label):
         image = hls_image(label)
         self.cells = cell_histograms(image, PIXELS_PER_CELL, ORIENTATIONS)
+        pad = phase_scoring_pad(self.cells.shape[1], STEP_CELLS, CELLS_PER_BLOCK)
         self.phase_cells = cell_histograms(image, PIXELS_PER_CELL, ORIENTATIONS,
-                                           phase_step=STEP_CELLS, phase_pad=CELLS_PER_BLOCK[1])
+                                           phase_step=STEP_CELLS, phase_pad=pad)
         self.blocks = normalize_blocks(self.cells, CELLS_PER_BLOCK, NORM)
         rng = np.random.default_rng(0)
         self.weights = rng.standard_normal(

@@ -33,7 +33,7 @@ from .kernels.label import (component_boxes, heat_blobs, label_components, split
                             split_levels)
 from .kernels.resize import resize_linear
 from .kernels.score import (add_hog_scores_from_phase_cells, add_spatial_scores,
-                            add_tile_window_sums, window_count)
+                            add_tile_window_sums, phase_scoring_pad, window_count)
 from .model import Model, load_model
 
 #: Work arrays kept before they are all dropped (see Detector._buffer).
@@ -290,11 +290,19 @@ class Detector:
 
     def _cells_buffer(self, plan):
         """The phase-layout cell array of a scale."""
-        o = self._options
-        shape = phase_layout_shape(plan.scaled_size[1] // o.pixels_per_cell,
-                                   plan.scaled_size[0] // o.pixels_per_cell, self._hog_channels,
-                                   o.orientations, plan.step_cells, o.cells_per_block)
+        shape = phase_layout_shape(*self._cell_grid(plan), self._hog_channels,
+                                   self._options.orientations, plan.step_cells,
+                                   self._phase_pad(plan))
         return self._buffer(plan, "cells", shape, np.float32)
+
+    def _cell_grid(self, plan):
+        """``(rows, columns)`` of HOG cells of a scale's resized region."""
+        ppc = self._options.pixels_per_cell
+        return plan.scaled_size[1] // ppc, plan.scaled_size[0] // ppc
+
+    def _phase_pad(self, plan):
+        cpb = self._options.cells_per_block
+        return phase_scoring_pad(self._cell_grid(plan)[1], plan.step_cells, (cpb, cpb))
 
     def prepare(self, frame):
         """Colour-convert the part of a frame any scale searches, once.
@@ -349,7 +357,8 @@ class Detector:
             # block map to memory.
             cells = cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
                                     options.orientations, out=self._cells_buffer(plan),
-                                    phase_step=plan.step_cells, phase_pad=cpb)
+                                    phase_step=plan.step_cells,
+                                    phase_pad=self._phase_pad(plan))
             t2 = time.perf_counter()
             add_hog_scores_from_phase_cells(cells, plan.scaled_size[0] // ppc, (cpb, cpb),
                                             options.block_norm, self._hog_weights,

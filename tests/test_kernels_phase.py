@@ -15,7 +15,8 @@ import pytest
 from fastdet.kernels.blocks import NORM_CODES, normalize_blocks
 from fastdet.kernels.hog import cell_histograms, phase_layout_shape, to_phase_layout
 from fastdet.kernels.score import (add_hog_scores, add_hog_scores_from_cells,
-                                   add_hog_scores_from_phase_cells, window_count)
+                                   add_hog_scores_from_phase_cells, phase_scoring_pad,
+                                   window_count)
 
 from naive import naive_normalize_blocks
 
@@ -106,6 +107,8 @@ def naive_scores(cells, cpb, norm, weights, step):
     ((11, 23, 1, 6), (3, 3), 4, 1),
     ((9, 31, 2, 5), (1, 2), 3, 3),
     ((12, 12, 3, 9), (2, 2), 11, 1),
+    ((10, 121, 3, 9), (2, 2), 7, 1),
+    ((9, 70, 1, 7), (1, 1), 5, 2),
 ])
 def test_phase_scores_match_naive_blocks_and_windows(norm, cells_shape, cpb, n, step):
     rng = np.random.default_rng(sum(cells_shape) + step)
@@ -115,9 +118,12 @@ def test_phase_scores_match_naive_blocks_and_windows(norm, cells_shape, cpb, n, 
     weights = rng.normal(size=(n, n, features)).astype(np.float32)
     expected = naive_scores(cells, cpb, norm, weights, step)
     out = np.full(expected.shape, 0.5, np.float32)
-    add_hog_scores_from_phase_cells(to_phase_layout(cells, step, cpb[1]), cells_shape[1], cpb,
-                                    norm, weights, step, out)
+    phase = to_phase_layout(cells, step, phase_scoring_pad(cells_shape[1], step, cpb))
+    add_hog_scores_from_phase_cells(phase, cells_shape[1], cpb, norm, weights, step, out)
     np.testing.assert_allclose(out, expected + 0.5, rtol=1e-5, atol=2e-5)
+    # Only the padding is scratch: the cells themselves are left as they were.
+    real = step * -(-cells_shape[1] // step)
+    np.testing.assert_array_equal(phase[..., :real], to_phase_layout(cells, step)[..., :real])
 
 
 @pytest.mark.parametrize("norm", sorted(NORM_CODES))
@@ -146,14 +152,16 @@ def test_phase_scores_of_a_real_frame_match_blocks_then_windows(data_dir):
         expected = np.zeros(grid, np.float32)
         add_hog_scores(blocks, weights, step, expected)
         out = np.zeros(grid, np.float32)
-        phase = cell_histograms(region, (8, 8), 9, phase_step=step, phase_pad=2)
+        phase = cell_histograms(region, (8, 8), 9, phase_step=step,
+                                phase_pad=phase_scoring_pad(cells.shape[1], step, (2, 2)))
         add_hog_scores_from_phase_cells(phase, cells.shape[1], (2, 2), "L2-Hys", weights, step,
                                         out)
         np.testing.assert_allclose(out, expected, rtol=1e-5, atol=2e-5)
 
 
 def test_phase_scores_of_all_zero_cells_are_zero():
-    phase = np.zeros(phase_layout_shape(10, 20, 3, 9, 2, 2), np.float32)
+    phase = np.zeros(phase_layout_shape(10, 20, 3, 9, 2, phase_scoring_pad(20, 2, (2, 2))),
+                     np.float32)
     out = np.zeros((2, 7), np.float32)
     weights = np.ones((7, 7, 108), np.float32)
     add_hog_scores_from_phase_cells(phase, 20, (2, 2), "L2-Hys", weights, 2, out)
@@ -161,7 +169,8 @@ def test_phase_scores_of_all_zero_cells_are_zero():
 
 
 def test_phase_scores_with_no_windows_leave_out_alone():
-    phase = np.zeros(phase_layout_shape(4, 4, 3, 9, 2, 2), np.float32)
+    phase = np.zeros(phase_layout_shape(4, 4, 3, 9, 2, phase_scoring_pad(4, 2, (2, 2))),
+                     np.float32)
     out = np.zeros((0, 0), np.float32)
     add_hog_scores_from_phase_cells(phase, 4, (2, 2), "L2", np.ones((7, 7, 108), np.float32),
                                     2, out)
@@ -169,12 +178,17 @@ def test_phase_scores_with_no_windows_leave_out_alone():
 
 
 def test_phase_scores_reject_mismatched_inputs():
-    phase = np.zeros(phase_layout_shape(16, 20, 3, 9, 2, 2), np.float32)
+    phase = np.zeros(phase_layout_shape(16, 20, 3, 9, 2, phase_scoring_pad(20, 2, (2, 2))),
+                     np.float32)
     with pytest.raises(ValueError, match="features per block"):
         add_hog_scores_from_phase_cells(phase, 20, (2, 2), "L2", np.ones((7, 7, 100), np.float32),
                                         2, np.zeros((1, 1), np.float32))
     with pytest.raises(ValueError, match="positions"):
-        add_hog_scores_from_phase_cells(phase[..., :-2], 20, (2, 2), "L2",
+        add_hog_scores_from_phase_cells(np.ascontiguousarray(phase[..., :-2]), 20, (2, 2), "L2",
+                                        np.ones((7, 7, 108), np.float32), 2,
+                                        np.zeros((1, 1), np.float32))
+    with pytest.raises(ValueError, match="C-contiguous float32"):
+        add_hog_scores_from_phase_cells(phase.astype(np.float64), 20, (2, 2), "L2",
                                         np.ones((7, 7, 108), np.float32), 2,
                                         np.zeros((1, 1), np.float32))
     with pytest.raises(ValueError, match="do not fit"):
@@ -188,7 +202,7 @@ def test_parallel_phase_scores_equal_serial(norm, step):
     rng = np.random.default_rng(step)
     cells = rng.random((41, 57, 3, 9), dtype=np.float32)
     weights = rng.normal(size=(7, 7, 108)).astype(np.float32)
-    phase = to_phase_layout(cells, step, 2)
+    phase = to_phase_layout(cells, step, phase_scoring_pad(57, step, (2, 2)))
     grid = (window_count(40, 7, step), window_count(56, 7, step))
     serial = np.zeros(grid, np.float32)
     parallel = np.zeros(grid, np.float32)
