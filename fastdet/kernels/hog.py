@@ -500,11 +500,14 @@ def _output(out, shape):
 # row is processed in groups of _GROUP_CELLS cells (G = 2 * 8 * C elements of
 # the flat row, whole 16-lane vectors).  For each 16-element piece of a group,
 # one block of LLVM vector IR walks the cell row's 8 image rows, computes the
-# gradients, the exact float32 magnitude and the orientation bin of 16 elements
-# at once, and adds the magnitude into one of nbins vector accumulators with a
-# masked add; the accumulators stay in registers for the 8 rows.  Afterwards
-# constant shuffles sum the lanes of each (cell, channel) (a fixed tree over
-# the cell's pixels) and the block stores nbins x cells x C sums.  This
+# gradients and the exact float32 magnitude of 16 elements at once.  The bin
+# rule below is a count of nested threshold conditions, so instead of a bin per
+# element the block keeps nbins + 1 vector accumulators: the magnitudes of
+# acute and of obtuse elements, over all elements and over those past each
+# threshold (two masked adds per threshold); they stay in registers for the 8
+# rows.  Afterwards constant shuffles sum the lanes of each (cell, channel) (a
+# fixed tree over the cell's pixels), neighbouring accumulators are subtracted
+# into bins, and the block stores nbins x cells x C sums.  This
 # replaces the per-element table lookup and memory scatter of the general
 # uint8 path.  Cells that do not fill a whole group are done one element at a
 # time with the lookup table.
@@ -606,7 +609,10 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
         zero_f = splat(0.0, floats_t)
         c_off = ir.Constant(i64, channels)
         undef_b = ir.Constant(bytes_t, ir.Undefined)
-        sums = [[] for _ in range(nbins)]
+        # Accumulators: the magnitudes of acute (gx * gy >= 0) and of obtuse
+        # pixels, each over all pixels and over those past each threshold.
+        middle = len(thresholds)
+        sums = [[] for _ in range(2 * (middle + 1))]
         for piece in range(pieces):
             head = first and piece == 0
             tail = last and piece == pieces - 1
@@ -619,7 +625,7 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
             r = builder.phi(i64)
             r.add_incoming(zero64, before)
             phis = []
-            for _ in range(nbins):
+            for _ in range(len(sums)):
                 phi = builder.phi(floats_t)
                 phi.add_incoming(zero_f, before)
                 phis.append(phi)
@@ -654,28 +660,33 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
             magnitude = builder.call(sqrt, [builder.call(fma, [fx, fx, builder.fmul(fy, fy)])])
             ax = builder.call(fabs, [fx])
             ay = builder.call(fabs, [fy])
-            # The conditions are monotone in k, so the last one that holds
-            # gives k'.
-            k = zero_i
+            # gx * gy is exact; a zero product (gx = 0 or gy = 0) counts as
+            # not obtuse, which changes nothing for gx = 0: k is the middle bin.
+            obtuse = builder.fcmp_ordered("<", builder.fmul(fx, fy), zero_f)
+            acute_mag = builder.select(obtuse, zero_f, magnitude)
+            obtuse_mag = builder.select(obtuse, magnitude, zero_f)
+            # The threshold conditions are nested (monotone in k), so summing
+            # each side's magnitudes past every threshold gives the bins as
+            # differences later: two masked adds per threshold instead of a
+            # bin index and a compare and masked add per bin.
+            acute = [builder.fadd(phis[0], acute_mag)]
+            obtuse_sums = [builder.fadd(phis[middle + 1], obtuse_mag)]
             for count, t in enumerate(thresholds, 1):
                 past = builder.fcmp_ordered(">=", ay, builder.fmul(ax, splat(t, floats_t)))
-                k = builder.select(past, splat(count), k)
-            # gx * gy is exact; a zero product (gx = 0 or gy = 0) counts as
-            # not obtuse, which changes nothing for gx = 0: k' is the middle bin.
-            obtuse = builder.fcmp_ordered("<", builder.fmul(fx, fy), zero_f)
-            b = builder.select(obtuse, builder.sub(splat(nbins - 1), k), k)
-            acc = []
-            for bin_ in range(nbins):
-                hit = builder.icmp_signed("==", b, splat(bin_))
-                acc.append(builder.select(hit, builder.fadd(phis[bin_], magnitude), phis[bin_]))
+                acute.append(builder.select(past, builder.fadd(phis[count], acute_mag),
+                                            phis[count]))
+                obtuse_phi = phis[middle + 1 + count]
+                obtuse_sums.append(builder.select(past, builder.fadd(obtuse_phi, obtuse_mag),
+                                                  obtuse_phi))
+            acc = acute + obtuse_sums
             r_next = builder.add(r, one)
             r.add_incoming(r_next, builder.block)
             for phi, value in zip(phis, acc):
                 phi.add_incoming(value, builder.block)
             builder.cbranch(builder.icmp_signed("<", r_next, ir.Constant(i64, ppc_y)), loop, after)
             builder.position_at_end(after)
-            for bin_ in range(nbins):
-                sums[bin_].append(acc[bin_])
+            for total, value in zip(sums, acc):
+                total.append(value)
 
         # Lane (cell, pixel, channel) of a group vector is
         # (cell * ppc_x + pixel) * channels + channel.
@@ -691,8 +702,9 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
                 vectors = pairs
             return vectors[0]
 
-        for bin_ in range(nbins):
-            v = concat(sums[bin_])
+        reduced = []
+        for pieces_of_sum in sums:
+            v = concat(pieces_of_sum)
             width = ppc_x
             while width > 1:
                 half = (width + 1) // 2
@@ -708,7 +720,19 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
                 b = builder.shuffle_vector(v, zeros, ir.Constant(mask_t(len(lanes_b)), lanes_b))
                 v = builder.fadd(a, b)
                 width = half
-            store_vector(builder, v, scratch, ir.Constant(i64, bin_ * outputs), align=4)
+            reduced.append(v)
+        # Bin k < middle holds the acute pixels past threshold k but not k + 1;
+        # bin nbins - 1 - k the obtuse ones; the middle bin both sides past the
+        # last threshold.  Float sums are monotone in their terms, so these
+        # differences are never negative, and exactly 0 for empty bins.
+        acute, obtuse_sums = reduced[:middle + 1], reduced[middle + 1:]
+        for k in range(middle):
+            store_vector(builder, builder.fsub(acute[k], acute[k + 1]), scratch,
+                         ir.Constant(i64, k * outputs), align=4)
+            store_vector(builder, builder.fsub(obtuse_sums[k], obtuse_sums[k + 1]), scratch,
+                         ir.Constant(i64, (nbins - 1 - k) * outputs), align=4)
+        store_vector(builder, builder.fadd(acute[middle], obtuse_sums[middle]), scratch,
+                     ir.Constant(i64, middle * outputs), align=4)
         return context.get_dummy_value()
 
     def block(typingctx, flat, height, row_bytes, y0, x0, scratch):
