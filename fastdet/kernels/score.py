@@ -35,7 +35,7 @@ from llvmlite import ir
 from numba import njit, prange, types, uint64
 from numba.extending import intrinsic
 
-from ._llvm import load_vector, store_vector
+from ._llvm import counted_loop, load_vector, splat, store_vector
 
 from .blocks import EPS, NORM_CODES
 from .hog import to_phase_layout
@@ -140,37 +140,6 @@ def add_hog_scores_from_cells(cells, cells_per_block, norm, weights, step_cells,
 _LANES = 16
 
 
-def _counted_loop(builder, count, initial, body):
-    """Emit ``for i in range(count)`` carrying ``initial`` values through ``body``.
-
-    ``body(i, values)`` emits one iteration and returns the next values; the
-    values after the last iteration are returned.  A top-tested loop, so a
-    zero ``count`` runs no iteration.
-    """
-    i64 = ir.IntType(64)
-    before = builder.block
-    head = builder.append_basic_block("loop_head")
-    loop = builder.append_basic_block("loop_body")
-    done = builder.append_basic_block("loop_done")
-    builder.branch(head)
-    builder.position_at_end(head)
-    index = builder.phi(i64)
-    values = [builder.phi(value.type) for value in initial]
-    index.add_incoming(ir.Constant(i64, 0), before)
-    for phi, value in zip(values, initial):
-        phi.add_incoming(value, before)
-    builder.cbranch(builder.icmp_unsigned("<", index, count), loop, done)
-    builder.position_at_end(loop)
-    following = body(index, values)
-    latch = builder.block
-    index.add_incoming(builder.add(index, ir.Constant(i64, 1)), latch)
-    for phi, value in zip(values, following):
-        phi.add_incoming(value, latch)
-    builder.branch(head)
-    builder.position_at_end(done)
-    return values
-
-
 def _window_dots(rows):
     """An intrinsic ``dots(weights, w_base, w_step, blocks, stride, offset, second,
     channels, per_channel, acc, a0, a_step)`` adding the dot products of one
@@ -202,8 +171,6 @@ def _window_dots(rows):
         fma = builder.module.declare_intrinsic(
             f"llvm.fma.v{_LANES}f32", fnty=ir.FunctionType(vector, [vector] * 3))
         zero = ir.Constant(vector, [0.0] * _LANES)
-        splat_mask = ir.Constant(ir.VectorType(ir.IntType(32), _LANES), [0] * _LANES)
-        undef = ir.Constant(vector, ir.Undefined)
         w_bases = [builder.add(w_base, builder.mul(w_step, ir.Constant(i64, i)))
                    for i in range(rows)]
 
@@ -213,8 +180,7 @@ def _window_dots(rows):
             out = []
             for w_row, total in zip(w_bases, sums):
                 weight = builder.load(builder.gep(weights, [builder.add(w_row, feature)]))
-                weight = builder.insert_element(undef, weight, ir.Constant(ir.IntType(32), 0))
-                weight = builder.shuffle_vector(weight, undef, splat_mask)
+                weight = splat(builder, weight, vector)
                 out.append(builder.call(fma, [weight, x, total]))
             return out
 
@@ -230,17 +196,17 @@ def _window_dots(rows):
                 return (add_feature(even, sums[:rows])
                         + add_feature(builder.add(even, ir.Constant(i64, 1)), sums[rows:]))
 
-            sums = _counted_loop(builder, builder.sdiv(per_channel, two), [zero] * (2 * rows),
+            sums = counted_loop(builder, builder.sdiv(per_channel, two), [zero] * (2 * rows),
                                  pair)
             sums = [builder.fadd(a, b) for a, b in zip(sums[:rows], sums[rows:])]
             last = builder.add(first, builder.sub(per_channel, ir.Constant(i64, 1)))
-            sums = _counted_loop(builder, builder.srem(per_channel, two), sums,
+            sums = counted_loop(builder, builder.srem(per_channel, two), sums,
                                  lambda k, partial: add_feature(last, partial))
             scale = load_vector(builder, second,
                                 builder.add(builder.mul(c, stride), offset), vector)
             return [builder.call(fma, [part, scale, total]) for part, total in zip(sums, totals)]
 
-        totals = _counted_loop(builder, channels, [zero] * rows, channel)
+        totals = counted_loop(builder, channels, [zero] * rows, channel)
         for i, total in enumerate(totals):
             index = builder.add(a0, builder.mul(a_step, ir.Constant(i64, i)))
             store_vector(builder, builder.fadd(load_vector(builder, acc, index, vector), total),
@@ -291,14 +257,7 @@ def _normalise_blocks(norm_code):
          n_base, stride, s_base) = [context.cast(builder, args[j], signature.args[j], types.uint64)
                                     for j in (1, 2, 3, 4, 5, 6, 7, 9, 10, 11, 15, 16, 18)]
 
-        def splat(value):
-            value = builder.insert_element(ir.Constant(vector, ir.Undefined), value,
-                                           ir.Constant(ir.IntType(32), 0))
-            return builder.shuffle_vector(value, ir.Constant(vector, ir.Undefined),
-                                          ir.Constant(ir.VectorType(ir.IntType(32), _LANES),
-                                                      [0] * _LANES))
-
-        bias, hys_bias = splat(args[12]), splat(args[13])
+        bias, hys_bias = splat(builder, args[12], vector), splat(builder, args[13], vector)
         sqrt = builder.module.declare_intrinsic(
             f"llvm.sqrt.v{_LANES}f32", fnty=ir.FunctionType(vector, [vector]))
         fma = builder.module.declare_intrinsic(
@@ -314,9 +273,9 @@ def _normalise_blocks(norm_code):
                 start = builder.add(row, builder.mul(dx, k))
                 return [builder.fadd(sums[0], load_vector(builder, energy, start, vector))]
 
-            return _counted_loop(builder, cpb_x, sums, cell)
+            return counted_loop(builder, cpb_x, sums, cell)
 
-        total, = _counted_loop(builder, cpb_y, [zero], energy_row)
+        total, = counted_loop(builder, cpb_y, [zero], energy_row)
         norm = builder.fadd(total, bias)
         if norm_code >= 2:
             norm = builder.call(sqrt, [norm])
@@ -347,12 +306,12 @@ def _normalise_blocks(norm_code):
 
                 # Each cell's squares in a chain of their own: one chain over
                 # the whole block would make its FMA latency the bottleneck.
-                cell_sum, = _counted_loop(builder, nbins, [zero], feature)
+                cell_sum, = counted_loop(builder, nbins, [zero], feature)
                 return [builder.fadd(sums[0], cell_sum)]
 
-            return _counted_loop(builder, cpb_x, sums, cell)
+            return counted_loop(builder, cpb_x, sums, cell)
 
-        sum_sq, = _counted_loop(builder, cpb_y, [zero], cell_row)
+        sum_sq, = counted_loop(builder, cpb_y, [zero], cell_row)
         if norm_code == 3:
             second_inv = builder.fdiv(one, builder.call(sqrt, [builder.fadd(sum_sq, hys_bias)]))
             store_vector(builder, second_inv, second, builder.add(s_base, p0))
