@@ -288,6 +288,16 @@ class Detector:
         width, height = plan.scaled_size
         return self._buffer(plan, ("resized", channels), (height, width, channels), np.uint8)
 
+    def _scaled_region(self, region, plan, channels):
+        """A scale's region resized to ``plan.scaled_size``; at scale 1, the
+        region itself when its rows are contiguous (a full-width region)."""
+        width, height = plan.scaled_size
+        if region.shape[:2] == (height, width) and region.flags.c_contiguous:
+            return region
+        # Bit-identical to cv2.resize(..., INTER_LINEAR), in about half its time.
+        return resize_linear(region, plan.scaled_size,
+                             out=self._resized_buffer(plan, channels))
+
     def _cells_buffer(self, plan):
         """The phase-layout cell array of a scale."""
         shape = phase_layout_shape(*self._cell_grid(plan), self._hog_channels,
@@ -339,13 +349,10 @@ class Detector:
         ox, oy = prepared.origin
         x0, y0, x1, y1 = plan.roi
         region = (slice(y0 - oy, y1 - oy), slice(x0 - ox, x1 - ox))
-        # Bit-identical to cv2.resize(..., INTER_LINEAR), in about half its time.
-        converted = resize_linear(prepared.converted[region], plan.scaled_size,
-                                  out=self._resized_buffer(plan, 3))
+        converted = self._scaled_region(prepared.converted[region], plan, 3)
         grey = None
         if prepared.grey is not None:
-            grey = resize_linear(prepared.grey[region][:, :, None], plan.scaled_size,
-                                 out=self._resized_buffer(plan, 1))
+            grey = self._scaled_region(prepared.grey[region][:, :, None], plan, 1)
         t1 = time.perf_counter()
         timings["resize_convert"] += t1 - t0
         scores = np.full(plan.grid, self.model.bias, dtype=np.float32)

@@ -1,8 +1,11 @@
 """Detector configuration: defaults, TOML overrides and one-line errors."""
 
+from pathlib import Path
+
 import pytest
 
-from fastdet.config import DEFAULT_SCALES, DetectorConfig, load_config
+import fastdet
+from fastdet.config import DEFAULT_SCALES, PUBLISHED_SCALES, DetectorConfig, load_config
 from fastdet.errors import ConfigError
 
 
@@ -12,11 +15,22 @@ def write(tmp_path, text):
     return path
 
 
-def test_defaults_are_the_five_published_scales():
+def test_defaults_are_the_five_published_scales_with_the_64_pixel_one_moved():
     config = load_config(None)
     assert config.search.scales == DEFAULT_SCALES
     assert [s.window for s in config.search.scales] == [32, 48, 64, 112, 128]
-    assert config.search.scales[2].x == (426, 853)
+    changed = [i for i in range(5) if DEFAULT_SCALES[i] != PUBLISHED_SCALES[i]]
+    assert changed == [2]
+    assert (DEFAULT_SCALES[2].overlap, DEFAULT_SCALES[2].x, DEFAULT_SCALES[2].y) == (
+        0.75, (0, 1280), (396, 500))
+    assert PUBLISHED_SCALES[2].x == (426, 853)
+
+
+def test_shipped_published_search_restores_the_published_scales():
+    path = Path(fastdet.__file__).parent / "data" / "published_search.toml"
+    config = load_config(path)
+    assert config.search.scales == PUBLISHED_SCALES
+    assert config.heat == DetectorConfig().heat
 
 
 def test_override_keeps_unlisted_defaults(tmp_path):

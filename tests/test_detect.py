@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from fastdet.config import BoxConfig, DetectorConfig, HeatConfig, ScaleConfig, SearchConfig
+from fastdet.config import (DEFAULT_SCALES, PUBLISHED_SCALES, BoxConfig, DetectorConfig, HeatConfig,
+                            ScaleConfig, SearchConfig)
 from fastdet.detect import Detector, Hits, as_bgr_frame, plan_scales
 from fastdet.errors import InputError
 from fastdet.features import FeatureLayout, FeatureOptions
@@ -50,9 +51,14 @@ def test_frames_smaller_than_any_window_give_no_boxes(random_model, shape):
     assert detector.heatmap(np.zeros(shape, np.uint8)).shape == shape[:2]
 
 
-def test_plans_follow_the_published_grid(random_model):
-    plans = plan_scales(DetectorConfig(), random_model.options, (1280, 720))
-    assert [p.grid for p in plans] == [(2, 20), (6, 52), (6, 12), (6, 42), (5, 37)]
+@pytest.mark.parametrize("scales, grids", [
+    (PUBLISHED_SCALES, [(2, 20), (6, 52), (6, 12), (6, 42), (5, 37)]),
+    (DEFAULT_SCALES, [(2, 20), (6, 52), (3, 77), (6, 42), (5, 37)]),
+])
+def test_plans_follow_the_configured_grid(random_model, scales, grids):
+    config = DetectorConfig(search=SearchConfig(scales=scales))
+    plans = plan_scales(config, random_model.options, (1280, 720))
+    assert [p.grid for p in plans] == grids
     first = plans[0]
     assert first.roi == (320, 396, 960, 460)
     assert first.boxes[0].tolist() == [320, 396, 352, 428]
@@ -143,6 +149,22 @@ def test_buffers_follow_the_plan_objects(random_model):
             for plan, scores in zip(plan_scales(detector.config, detector.model.options, size),
                                     expected[size]):
                 np.testing.assert_array_equal(detector.score_scale(prepared, plan), scores)
+
+
+def test_full_width_regions_at_scale_one_are_scored_in_place(random_model):
+    detector = Detector(random_model, threads=1)
+    frame = np.random.default_rng(1).integers(0, 256, (720, 1280, 3), dtype=np.uint8)
+    prepared = detector.prepare(frame)
+    plan = detector.plans((1280, 720))[2]
+    assert plan.scaled_size[0] == 1280                      # the default 64-px scale
+    x0, y0, x1, y1 = plan.roi
+    ox, oy = prepared.origin
+    region = prepared.converted[y0 - oy:y1 - oy, x0 - ox:x1 - ox]
+    assert np.shares_memory(detector._scaled_region(region, plan, 3), prepared.converted)
+    in_place = detector.score_scale(prepared, plan)
+    copied = Detector(random_model, threads=1)
+    copied._scaled_region = lambda region, plan, channels: np.array(region)
+    np.testing.assert_array_equal(copied.score_scale(prepared, plan), in_place)
 
 
 def test_one_scale_config_scores_only_that_scale(random_model):
