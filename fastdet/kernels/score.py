@@ -240,11 +240,12 @@ def _normalise_blocks(norm_code):
     and that cell's energy (sum of squares or of absolute values over bins)
     at ``energy[e_base + dy * e_row_stride + dx * k + p0 + lane]``.  Feature
     ``f = (dy * cpb_x + dx) * nbins + b`` of the block goes to
-    ``normalised[n_base + f * stride + p0 + lane]``.  ``bias`` is added to the norm's sum: eps for
-    L1 norms, eps**2 for L2 norms.  For L2-Hys (``norm_code`` 3) the clipped
-    values' second inverse norm, ``1 / sqrt(sum of squares + hys_bias)``, goes
-    to ``second[s_base + p0 + lane]``.  Sums run in the order of a plain loop
-    over (dy, dx) and then features, so the values equal a scalar loop's.
+    ``normalised[n_base + f * stride + p0 + lane]``.  ``bias`` is added to the
+    norm's sum: eps for L1 norms, eps**2 for L2 norms.  For L2-Hys
+    (``norm_code`` 3) the clipped values' second inverse norm,
+    ``1 / sqrt(sum of squares + hys_bias)``, goes to ``second[s_base + p0 +
+    lane]``.  Sums run in the order of a plain loop over (dy, dx) and then
+    features, so the values equal a scalar loop's.
     """
 
     def codegen(context, builder, signature, args):
@@ -304,10 +305,7 @@ def _normalise_blocks(norm_code):
                         return sums
                     return [builder.call(fma, [value, value, sums[0]])]
 
-                # Each cell's squares in a chain of their own: one chain over
-                # the whole block would make its FMA latency the bottleneck.
-                cell_sum, = counted_loop(builder, nbins, [zero], feature)
-                return [builder.fadd(sums[0], cell_sum)]
+                return counted_loop(builder, nbins, sums, feature)
 
             return counted_loop(builder, cpb_x, sums, cell)
 
@@ -354,7 +352,8 @@ def _phase_energy(cells_flat, base, nbins, length, norm_code, energy, e_base):
 def _fill_wrapped_phases(cells, per_phase, step, wrap):
     """Write the ``wrap`` phases after the ``step`` real ones (see
     :func:`phase_scoring_pad`): position ``q * K + j`` gets cell column
-    ``q + j * step``, i.e. phase ``q - step`` one column on."""
+    ``q + j * step``, i.e. that of phase ``q % step`` at ``j + q // step``
+    (zero past the grid)."""
     rows, channels, nbins, length = cells.shape
     flat = cells.reshape(cells.size)
     k = uint64(per_phase)
