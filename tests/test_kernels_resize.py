@@ -176,3 +176,24 @@ def test_check_detects_a_difference(monkeypatch):
     monkeypatch.setitem(globals(), "resize_linear", off_by_one)
     with pytest.raises(AssertionError):
         check(image, (17, 11))
+
+
+@pytest.mark.parametrize("channels", [1, 3, 4])
+@pytest.mark.parametrize("height, width", [(2, 2), (2, 94), (4, 96), (6, 98), (30, 34),
+                                           (258, 1280), (258, 1278), (11 * 2, 45 * 2)])
+def test_exact_halving_matches_opencv(height, width, channels):
+    # OpenCV switches to its INTER_AREA path here; the halving kernel must
+    # agree, vector blocks (16 pixels of 3 channels) and tails alike.
+    image = np.random.default_rng(height * width + channels).integers(
+        0, 256, (height, width, channels), dtype=np.uint8)
+    check(image, (width // 2, height // 2))
+    rows = np.empty((height // 2, width // 2 * channels), np.uint8)
+    resize_module._halve(image.reshape(height, width * channels), channels, rows)
+    np.testing.assert_array_equal(rows.reshape(height // 2, width // 2, channels),
+                                  reference(image, (width // 2, height // 2)))
+
+
+def test_exact_halving_of_a_frame_region_view(data_dir):
+    frame = cv2.imread(str(data_dir / "test_images" / "test1.jpg"))
+    region = frame[360:618, 2:1280]          # strided rows, like the 128-px scale's
+    check(region, (639, 129))
