@@ -10,15 +10,39 @@ leftover pixels for factors 1, 2 and 4, the per-pixel box path (factor 3), the
 four-pixel tile path (tile a multiple of 4) and the per-pixel one (other
 tiles), images smaller than a tile or a box cell, and tile rows and box rows
 that end at different image rows.
+
+Tile sums have two paths, both checked (the ``path`` fixture): the AVX-512
+bin-table path, taken when each channel's lut is constant on aligned runs of 8
+values (the detector's lut for 32 bins or fewer), and the per-pixel table
+lookups for any lut.  Luts of both kinds are used, and 16-pixel vector blocks
+with tails of whole tiles after them (and the bottom tile row's last block,
+which would read past the image).
 """
 
 from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
 
 import cv2
 import numpy as np
 import pytest
 
-from fastdet.kernels.colour import _colour_maps, colour_maps
+import fastdet.kernels.colour as colour_module
+from fastdet.kernels.colour import PATH_AVX512, PATH_SCALAR, _colour_maps, colour_maps
+
+#: The tile-sum paths this machine can run: every one is checked.
+PATHS = [name for name, usable in (("avx512", colour_module.HAVE_AVX512BW),
+                                   ("scalar", True)) if usable]
+
+
+@pytest.fixture(params=PATHS)
+def path(request, monkeypatch):
+    """Run the test with one tile-sum path allowed; the path's kernel code."""
+    monkeypatch.setattr(colour_module, "HAVE_AVX512BW", request.param == "avx512")
+    return PATH_AVX512 if request.param == "avx512" else PATH_SCALAR
 
 
 def reference_tiles(image, lut, tile):
@@ -63,9 +87,35 @@ def random_lut(rng):
     return rng.normal(size=(3, 256)).astype(np.float32)
 
 
+def binned_lut(rng, bins=32):
+    """The detector's kind of lut: per-channel bin weights, ``bins`` equal bins."""
+    bin_weights = rng.normal(size=(3, bins)).astype(np.float32)
+    return np.ascontiguousarray(bin_weights[:, np.arange(256) * bins // 256])
+
+
+#: Luts the bin-table path takes (bins dividing 32) and ones it must not.
+BINNED = [32, 16, 8, 1]
+NOT_BINNED = [64, 24, 256]
+LUT_KINDS = [f"bins{b}" for b in BINNED + NOT_BINNED] + ["random"]
+
+
+def make_lut(kind, rng):
+    return random_lut(rng) if kind == "random" else binned_lut(rng, int(kind[4:]))
+
+
+def tile_path(image, lut, tile, factor, path):
+    """The tile-sum path _colour_maps takes when allowed ``path``."""
+    tiles = np.empty((image.shape[0] // tile, image.shape[1] // tile), np.float32)
+    box = np.empty((image.shape[0] // factor, image.shape[1] // factor, 3) if factor
+                   else (0, 0, 3), np.float32)
+    return _colour_maps(path, image, lut, tile, factor, True, factor > 0, tiles, box)
+
+
 SHAPES = [
     (1, 1), (3, 5), (7, 15),          # smaller than a tile (and some than a box cell)
     (8, 8), (16, 16),                 # exactly one tile of 8 / of 16
+    (16, 32), (8, 40),                # tiles cover every column: the bottom tile
+                                      # row's last vector block would read past the image
     (17, 33), (31, 47),               # odd: partial tiles and cells everywhere
     (24, 107),                        # factor 2: 3 whole blocks + 5 pixels per row
     (45, 143),                        # factor 4: 2 whole blocks + 3 pixels per row
@@ -76,13 +126,93 @@ SHAPES = [
 
 @pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize("tile, factor", [
-    (8, 2), (16, 2), (8, 4), (16, 1), (8, 0), (16, 4), (32, 2),
-    (4, 2), (12, 3), (5, 2), (6, 1), (1, 4),
+    (8, 2), (16, 2), (8, 4), (16, 1), (8, 0), (16, 4), (32, 2), (64, 2),
+    (4, 2), (12, 3), (5, 2), (6, 1), (1, 4), (2, 0),
 ])
-def test_random_images_match_numpy(shape, tile, factor):
+@pytest.mark.parametrize("kind", ["bins32", "random"])
+def test_random_images_match_numpy(path, shape, tile, factor, kind):
     rng = np.random.default_rng(shape[0] * 1000 + shape[1] + tile * 7 + factor)
     image = rng.integers(0, 256, shape + (3,), dtype=np.uint8)
-    check(image, random_lut(rng), tile, factor)
+    check(image, make_lut(kind, rng), tile, factor)
+
+
+@pytest.mark.parametrize("kind", LUT_KINDS)
+@pytest.mark.parametrize("tile", [1, 2, 4, 8, 16, 32, 64, 5, 12])
+def test_every_lut_kind_and_tile(path, kind, tile):
+    """Wide rows (many vector blocks) with odd widths: tails of whole tiles
+    after the last 16-pixel block, and a partial tile past them."""
+    rng = np.random.default_rng(tile * 31 + LUT_KINDS.index(kind))
+    for shape in [(70, 251), (64, 64 * 5), (9, 163)]:
+        image = rng.integers(0, 256, shape + (3,), dtype=np.uint8)
+        check(image, make_lut(kind, rng), tile, 2)
+
+
+def test_bin_table_path_is_taken_only_for_binned_luts():
+    """The vector path is taken exactly for luts constant on aligned runs of 8
+    values (where the CPU has it); any other lut, or the scalar path asked
+    for, gives the scalar path."""
+    rng = np.random.default_rng(5)
+    image = rng.integers(0, 256, (40, 100, 3), dtype=np.uint8)
+    vector = PATH_AVX512 if colour_module.HAVE_AVX512BW else PATH_SCALAR
+    for bins in BINNED + [2, 4]:
+        assert tile_path(image, binned_lut(rng, bins), 8, 2, PATH_AVX512) == vector
+        assert tile_path(image, binned_lut(rng, bins), 8, 2, PATH_SCALAR) == PATH_SCALAR
+    for bins in NOT_BINNED:
+        assert tile_path(image, binned_lut(rng, bins), 8, 2, PATH_AVX512) == PATH_SCALAR
+    assert tile_path(image, random_lut(rng), 16, 0, PATH_AVX512) == PATH_SCALAR
+    for c, v in [(0, 1), (1, 255), (2, 100)]:     # one value off its run
+        lut = binned_lut(rng)
+        lut[c, v] += 1
+        assert tile_path(image, lut, 8, 2, PATH_AVX512) == PATH_SCALAR
+    lut = binned_lut(rng)
+    lut[1, 77] = np.nan                             # NaN equals nothing: scalar
+    assert tile_path(image, lut, 8, 2, PATH_AVX512) == PATH_SCALAR
+
+
+def test_colour_maps_takes_the_vector_path(monkeypatch):
+    """colour_maps itself asks for the vector path where the CPU has it."""
+    taken = []
+
+    def spy(*args):
+        taken.append(_colour_maps(*args))
+
+    monkeypatch.setattr(colour_module, "_colour_maps", spy)
+    rng = np.random.default_rng(2)
+    image = rng.integers(0, 256, (32, 64, 3), dtype=np.uint8)
+    colour_maps(image, binned_lut(rng), 16, 2)
+    colour_maps(image, random_lut(rng), 16, 2)
+    vector = PATH_AVX512 if colour_module.HAVE_AVX512BW else PATH_SCALAR
+    assert taken == [vector, PATH_SCALAR]
+
+
+def test_portable_target_uses_the_scalar_path(tmp_path):
+    """Compiled for a CPU without AVX-512 (NUMBA_CPU_NAME=haswell), the vector
+    branch is pruned: the scalar path runs, with the same results."""
+    script = textwrap.dedent("""
+        import numpy as np
+        import fastdet.kernels.colour as colour
+        assert not colour.HAVE_AVX512BW
+        rng = np.random.default_rng(1)
+        image = rng.integers(0, 256, (37, 131, 3), dtype=np.uint8)
+        lut = np.ascontiguousarray(rng.normal(size=(3, 32)).astype(np.float32)[
+            :, np.arange(256) // 8])
+        tiles = np.empty((37 // 8, 131 // 8), np.float32)
+        box = np.empty((18, 65, 3), np.float32)
+        path = colour._colour_maps(colour.PATH_AVX512, image, lut, 8, 2, True, True, tiles, box)
+        assert path == colour.PATH_SCALAR, path
+        np.save(__import__("sys").argv[1], tiles)
+    """)
+    environment = dict(os.environ, NUMBA_CPU_NAME="haswell")
+    environment.pop("NUMBA_CPU_FEATURES", None)
+    out = tmp_path / "tiles.npy"
+    subprocess.run([sys.executable, "-c", script, str(out)], check=True, env=environment,
+                   timeout=600)
+    tiles = np.load(out)
+    rng = np.random.default_rng(1)
+    image = rng.integers(0, 256, (37, 131, 3), dtype=np.uint8)
+    lut = np.ascontiguousarray(rng.normal(size=(3, 32)).astype(np.float32)[:, np.arange(256) // 8])
+    expected, magnitude = reference_tiles(image, lut, 8)
+    np.testing.assert_array_less(np.abs(tiles - expected), 1e-5 * magnitude + 1e-30)
 
 
 @pytest.mark.parametrize("shape", SHAPES)
@@ -93,21 +223,24 @@ def test_box_alone_matches_numpy(shape, factor):
     check(image, None, 8, factor)
 
 
-def test_extreme_values():
+def test_extreme_values(path):
     """All-255 pixels (largest sums) and all-0 pixels, next to each other."""
     image = np.zeros((40, 96, 3), np.uint8)
     image[:, 48:] = 255
     image[::3, ::5, 1] = 255
     lut = np.linspace(-1e3, 1e3, 768, dtype=np.float32).reshape(3, 256)
+    binned = np.ascontiguousarray(lut[:, np.arange(256) & ~7])
     for tile, factor in [(8, 2), (16, 4), (8, 1), (5, 3)]:
         check(image, lut, tile, factor)
+        check(image, binned, tile, factor)
 
 
-def test_each_output_is_independent_of_the_other():
+@pytest.mark.parametrize("kind", ["bins32", "random"])
+def test_each_output_is_independent_of_the_other(path, kind):
     """Tile sums and box mean computed together equal each computed alone
     (the two passes are interleaved by bands of rows)."""
     rng = np.random.default_rng(7)
-    lut = random_lut(rng)
+    lut = make_lut(kind, rng)
     for shape in [(37, 131), (9, 70), (70, 9), (100, 64)]:
         image = rng.integers(0, 256, shape + (3,), dtype=np.uint8)
         for tile, factor in [(8, 2), (16, 2), (8, 4), (32, 1), (16, 3), (5, 2)]:
@@ -116,7 +249,7 @@ def test_each_output_is_independent_of_the_other():
             np.testing.assert_array_equal(box, colour_maps(image, None, tile, factor)[1])
 
 
-def test_non_contiguous_image_and_lut():
+def test_non_contiguous_image_and_lut(path):
     rng = np.random.default_rng(3)
     big = rng.integers(0, 256, (80, 150, 3), dtype=np.uint8)
     view = big[5:70:2, 3:140]                       # strided rows
@@ -124,6 +257,10 @@ def test_non_contiguous_image_and_lut():
     assert not view.flags.c_contiguous and not lut_view.flags.c_contiguous
     check(view, lut_view, 8, 2)
     check(view, lut_view.astype(np.float64), 16, 4)   # float64 LUT is converted
+    binned_view = np.asfortranarray(binned_lut(rng))
+    assert not binned_view.flags.c_contiguous
+    check(view, binned_view, 8, 2)
+    check(view, binned_view.astype(np.float64), 16, 4)
 
 
 def test_lut_none_and_factor_zero_skip_both():
@@ -132,20 +269,27 @@ def test_lut_none_and_factor_zero_skip_both():
     assert tiles.shape == (0, 0) and box.shape == (0, 0, 3)
 
 
-def test_tile_sums_read_the_right_pixel_and_channel():
+@pytest.mark.parametrize("binned", [False, True])
+@pytest.mark.parametrize("tile", [8, 16])
+def test_tile_sums_read_the_right_pixel_and_channel(path, binned, tile):
     """One marked pixel per tile, at a random place and channel: its weight
-    (unique per channel and value, exact in float32) lands in its tile only."""
-    tile = 8
+    (unique per channel and value, or per channel and bin of 8 values, exact
+    in float32) lands in its tile only."""
     th, tw = 5, 9
     image = np.zeros((th * tile + 3, tw * tile + 5, 3), np.uint8)
     lut = (np.arange(768, dtype=np.float32) + 1).reshape(3, 256)
-    lut[:, 0] = 0                                   # unmarked pixels weigh 0
+    if binned:
+        lut = np.ascontiguousarray(lut[:, np.arange(256) & ~7])
+        lut[:, :8] = 0                              # unmarked pixels weigh 0
+    else:
+        lut[:, 0] = 0
+    low = 8 if binned else 1
     expected = np.zeros((th, tw), np.float32)
-    rng = np.random.default_rng(11)
+    rng = np.random.default_rng(11 + tile)
     for ty in range(th):
         for tx in range(tw):
             dy, dx, c = rng.integers(0, tile), rng.integers(0, tile), rng.integers(0, 3)
-            value = rng.integers(1, 256)
+            value = rng.integers(low, 256)
             image[ty * tile + dy, tx * tile + dx, c] = value
             expected[ty, tx] = lut[c, value]
     for factor in (0, 2):
@@ -154,16 +298,17 @@ def test_tile_sums_read_the_right_pixel_and_channel():
 
 @pytest.mark.parametrize("shape", [(1, 1), (7, 15), (17, 33), (45, 143), (67, 200)])
 @pytest.mark.parametrize("tile, factor", [(8, 2), (16, 4), (8, 1), (5, 3), (12, 2), (32, 0)])
-def test_kernel_writes_every_output_element(shape, tile, factor):
+@pytest.mark.parametrize("kind", ["bins32", "random"])
+def test_kernel_writes_every_output_element(path, shape, tile, factor, kind):
     """colour_maps hands the kernel uninitialised (np.empty) outputs, so the
     kernel must write every element: start from NaN and look for leftovers."""
     rng = np.random.default_rng(shape[1] + tile)
     image = rng.integers(0, 256, shape + (3,), dtype=np.uint8)
-    lut = random_lut(rng)
+    lut = make_lut(kind, rng)
     tiles = np.full((shape[0] // tile, shape[1] // tile), np.nan, np.float32)
     box = np.full((shape[0] // factor, shape[1] // factor, 3) if factor else (0, 0, 3), np.nan,
                   np.float32)
-    _colour_maps(image, lut, tile, factor, True, factor > 0, tiles, box)
+    _colour_maps(path, image, lut, tile, factor, True, factor > 0, tiles, box)
     assert not np.isnan(tiles).any() and not np.isnan(box).any()
     expected_tiles, expected_box = check(image, lut, tile, factor)
     np.testing.assert_array_equal(tiles, expected_tiles)
@@ -184,11 +329,11 @@ def real_hls(data_dir):
     ((640, 129), (400, 529)),
     ((99, 37), (400, 500)),
 ])
-@pytest.mark.parametrize("tile, factor", [(8, 2), (16, 2), (32, 4), (8, 1)])
-def test_real_image_matches_numpy(real_hls, size, rows, tile, factor):
-    """The detector's use: HLS crops resized to each search scale."""
+@pytest.mark.parametrize("tile, factor", [(8, 2), (16, 2), (32, 2), (64, 2), (32, 4), (8, 1)])
+@pytest.mark.parametrize("kind", ["bins32", "bins16", "random"])
+def test_real_image_matches_numpy(path, real_hls, size, rows, tile, factor, kind):
+    """The detector's use: HLS crops resized to each search scale, with the
+    detector's kind of lut (per-channel bin weights expanded to all 256
+    values) and others."""
     image = cv2.resize(real_hls[rows[0]:rows[1]], size)
-    # The detector's LUT: per-channel bin weights expanded to all 256 values.
-    bin_weights = np.random.default_rng(0).normal(size=(3, 32)).astype(np.float32)
-    lut = np.ascontiguousarray(bin_weights[:, np.arange(256) * 32 // 256])
-    check(image, lut, tile, factor)
+    check(image, make_lut(kind, np.random.default_rng(0)), tile, factor)

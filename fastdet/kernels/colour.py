@@ -16,18 +16,34 @@ rows the tile pass has just brought into cache.  Colour images always have
 three channels here, which the loops hard-code.  Indices are unsigned: Numba's
 negative-index wraparound would otherwise get in LLVM's way.
 
-Where the time goes (one thread, Xeon with AVX-512; about 1.4 ns per pixel
-for tile 8 and factor 2):
+Where the time goes (one thread, Xeon with AVX-512; the detector's five
+scale images of a 1280x720 frame, 0.83 M pixels, tiles of 16 to 64 and box
+factor 2: 0.42 ms, about 0.5 ns per pixel, of which the tile sums take 0.23):
 
-* Tile sums are three table lookups per pixel.  Vector gathers are slow on
-  this CPU (over 1 ns per lookup), and LLVM cannot prove the table unaliased
-  anyway, so they stay scalar (about 1.1 ns per pixel) and the work is cutting
-  instructions: four pixels (12 bytes) come from three 32-bit words (split
-  with shifts) plus three single bytes, and each tile is summed over all its
-  rows in registers as a fixed tree of adds.  No reassociating fastmath here:
-  LLVM would fold the tree back into one long dependency chain.  (A combined
-  table for two channels, 256 KB, halves the lookups but after building it
-  saved only 5-7 %.)
+* Tile sums with the detector's lut (:func:`_bin_column_sums`): for 32 bins
+  or fewer a weight only depends on ``value >> 3``, so each channel's weights
+  are a 32-entry table, two 512-bit registers, and 16 lookups are one
+  vpermi2ps.  Per 16 pixels of a row: one 64-byte load, vpermd and vpshufb to
+  give each pixel a 32-bit lane, one 16-bit shift, two 32-bit shifts, three
+  vpermi2ps and three adds, 11 instructions balanced over the two 512-bit
+  ports (about 0.21-0.25 ns per pixel).  Each 16 columns' sums stay in a
+  register down the tile row; tiles then add their columns.  Slower variants:
+  four 16-byte loads instead of one load and vpermd (10-15 %); one vpshufb
+  per channel instead of the shifts (about 5 %); a masked load that never
+  reads past the block (15 %); rows outer with the column sums in memory
+  (5-10 %); four partial sums per tile in the column pass (10 %).  With AVX2
+  alone a 32-entry table costs four vpermps and three blends per channel and
+  8 pixels: not written (nor measured), such CPUs take the scalar path.
+* Tile sums with any other lut (or without AVX-512BW): three scalar table
+  lookups per pixel.  Vector gathers are slow on this CPU (over 1 ns per
+  lookup), and LLVM cannot prove the table unaliased anyway, so they stay
+  scalar (about 1.0 ns per pixel) and the work is cutting instructions: four
+  pixels (12 bytes) come from three 32-bit words (split with shifts) plus
+  three single bytes, and each tile is summed over all its rows in registers
+  as a fixed tree of adds.  No reassociating fastmath here: LLVM would fold
+  the tree back into one long dependency chain.  (A combined table for two
+  channels, 256 KB, halves the lookups but after building it saved only 5-7
+  %.)
 * The box mean of 16 output pixels is one block of LLVM vector IR
   (:func:`_box_block`, factors 1, 2 and 4): widen each row run to 16 bits,
   add the rows, pick each output pixel's source pixels with constant shuffles,
@@ -38,8 +54,8 @@ for tile 8 and factor 2):
   loop as well; 256-bit versions of the block were slower overall.
 
 The box image is exact (sums of bytes, one rounding in the final scale).  The
-tile sums are float32 sums in a fixed order, so they differ from a float64
-reference only by float32 rounding.
+tile sums are float32 sums in a fixed order (per path), so they differ from a
+float64 reference only by float32 rounding.
 """
 
 import sys
@@ -47,9 +63,11 @@ import sys
 import numpy as np
 from llvmlite import ir
 from numba import njit, types, uint64
+from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ._llvm import load_vector, store_vector
+from .resize import HAVE_AVX512BW
 
 _C = uint64(3)
 _BYTE = uint64(255)
@@ -59,6 +77,20 @@ _LUT2 = uint64(512)
 
 #: Pixels are split from whole 32-bit words only on little-endian machines.
 _LITTLE_ENDIAN = sys.byteorder == "little"
+
+#: Tile-sum paths: the bin-table vector path, and the table lookups per pixel
+#: that work for any lut.
+PATH_AVX512 = 0
+PATH_SCALAR = 1
+
+#: The bin-table path needs each channel's lut constant on aligned runs of
+#: 2**_BIN_SHIFT values (true of the detector's lut for 1, 2, 4, ... 32 bins):
+#: a weight is then entry ``value >> _BIN_SHIFT`` of a _BINS-entry table,
+#: two 512-bit registers.
+_BIN_SHIFT = 3
+_BINS = 256 >> _BIN_SHIFT
+#: Pixels per bin-table block: one 32-bit lane each (48 bytes in).
+_PIXEL_BLOCK = 16
 
 
 @intrinsic
@@ -199,6 +231,140 @@ def _tile_row_pixels(flat, row_bytes, lut, tile, y0, out):
         out[tx] = total
 
 
+# -- tile sums from a bin table (AVX-512) -------------------------------------
+#: Bytes a block reads: one 64-byte load, of which the block's 48 bytes are used.
+_BLOCK_READ = 64
+#: 32-bit words of the load moved into each 128-bit lane (vpermd): block
+#: bytes 0-15, 12-27, 24-39 and 32-47, i.e. pixels 0-3, 4-7 and 8-11 from
+#: byte 0 of their lane and pixels 12-15 from byte 4.
+_LANE_WORDS = [0, 1, 2, 3, 3, 4, 5, 6, 6, 7, 8, 9, 8, 9, 10, 11]
+_LANE_SKIP = [0, 0, 0, 4]
+
+
+def _expand_pixels():
+    """vpshufb mask giving each pixel of a block its own 32-bit lane: channels
+    0-2 in bytes 0-2, zero in byte 3 (laid out as _LANE_WORDS)."""
+    mask = []
+    for skip in _LANE_SKIP:
+        for k in range(4):
+            mask += [skip + 3 * k, skip + 3 * k + 1, skip + 3 * k + 2, 0x80]
+    return mask
+
+
+@intrinsic
+def _bin_column_sums(typingctx, flat, start, row_bytes, rows, blocks, table, sums):
+    """sums[16k + j] = weight sum over ``rows`` rows of pixel column 16k + j,
+    for the ``blocks`` blocks of _PIXEL_BLOCK pixels of the rows starting at
+    flat[start], flat[start + row_bytes], ...  Each block reads _BLOCK_READ
+    bytes of every row (16 past its own): the caller keeps them in ``flat``.
+
+    ``table[32c + b]`` is channel c's weight for ``value >> 3 == b``.  Per
+    block and row: one 64-byte load; vpermd and vpshufb give each pixel a
+    32-bit lane; a 16-bit shift by 3 leaves ``value >> 3`` in the low 5 bits
+    of every byte (the bits shifted in from the next byte land above them);
+    channel c's lane index is that lane shifted right by 8c (vpermi2ps reads
+    only the low 5 bits of an index) and one vpermi2ps looks its 16 weights
+    up in the two registers of channel c's table.  A block's column sums stay
+    in a register over the rows.  That is 11 instructions per 16 pixels, the
+    5 shuffles and 6 shifts and adds balanced over the two 512-bit ports.
+    """
+    sig = types.void(flat, start, row_bytes, rows, blocks, table, sums)
+
+    def codegen(context, builder, signature, args):
+        flat_a = context.make_array(signature.args[0])(context, builder, args[0])
+        table_a = context.make_array(signature.args[5])(context, builder, args[5])
+        sums_a = context.make_array(signature.args[6])(context, builder, args[6])
+        start, row_bytes, rows, blocks = args[1:5]
+        i8, i16, i32, f32 = ir.IntType(8), ir.IntType(16), ir.IntType(32), ir.FloatType()
+        v64i8, v32i16 = ir.VectorType(i8, 64), ir.VectorType(i16, 32)
+        v16i32, v16f32 = ir.VectorType(i32, 16), ir.VectorType(f32, 16)
+        module = builder.module
+        pshufb = module.declare_intrinsic(
+            "llvm.x86.avx512.pshuf.b.512", fnty=ir.FunctionType(v64i8, [v64i8, v64i8]))
+        permute = module.declare_intrinsic(
+            "llvm.x86.avx512.vpermi2var.ps.512",
+            fnty=ir.FunctionType(v16f32, [v16f32, v16i32, v16f32]))
+
+        def const(value):
+            return ir.Constant(start.type, value)
+
+        halves = [(load_vector(builder, table_a.data, const(_BINS * c), v16f32, align=4),
+                   load_vector(builder, table_a.data, const(_BINS * c + 16), v16f32, align=4))
+                  for c in range(3)]
+        lane_words = ir.Constant(v16i32, _LANE_WORDS)
+        expand = ir.Constant(v64i8, _expand_pixels())
+        bin_shift = ir.Constant(v32i16, [_BIN_SHIFT] * 32)
+        total = cgutils.alloca_once(builder, v16f32)
+        with cgutils.for_range(builder, blocks) as block:
+            top = builder.add(start, builder.mul(block.index, const(3 * _PIXEL_BLOCK)))
+            builder.store(ir.Constant(v16f32, [0.0] * 16), total)
+            with cgutils.for_range(builder, rows) as row:
+                at = builder.add(top, builder.mul(row.index, row_bytes))
+                words = builder.bitcast(load_vector(builder, flat_a.data, at, v64i8), v16i32)
+                laid_out = builder.shuffle_vector(words, ir.Constant(v16i32, ir.Undefined),
+                                                  lane_words)
+                bins = builder.lshr(builder.bitcast(laid_out, v32i16), bin_shift)
+                pixels = builder.bitcast(
+                    builder.call(pshufb, [builder.bitcast(bins, v64i8), expand]), v16i32)
+                weight = None
+                for c in range(3):
+                    index = pixels if c == 0 else builder.lshr(
+                        pixels, ir.Constant(v16i32, [8 * c] * 16))
+                    looked_up = builder.call(permute, [halves[c][0], index, halves[c][1]])
+                    weight = looked_up if weight is None else builder.fadd(weight, looked_up)
+                builder.store(builder.fadd(builder.load(total), weight), total)
+            store_vector(builder, builder.load(total), sums_a.data,
+                         builder.mul(block.index, const(_PIXEL_BLOCK)), align=4)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@njit(cache=True)
+def _bin_table(lut, table):
+    """Fill table[32c + b] with lut[c, 8b] and return True if each channel of
+    the flat lut is constant on aligned runs of 8 values; else return False."""
+    run = uint64(1 << _BIN_SHIFT)
+    for c in range(uint64(3)):
+        for v in range(uint64(256)):
+            if lut[uint64(256) * c + v] != lut[uint64(256) * c + (v & ~(run - uint64(1)))]:
+                return False
+        for b in range(uint64(_BINS)):
+            table[uint64(_BINS) * c + b] = lut[uint64(256) * c + b * run]
+    return True
+
+
+@njit(cache=True)
+def _tile_row_bins(flat, row_bytes, lut, table, tile, y0, columns, out):
+    """Like :func:`_tile_row_quads` with a bin table: sums of each image
+    column over the tile row into ``columns`` (16-pixel vector blocks, then
+    the columns of whole tiles past the last block one pixel at a time), then
+    each tile's columns added in order."""
+    t = uint64(tile)
+    row = uint64(row_bytes)
+    covered = uint64(out.size) * t
+    start = uint64(y0) * row
+    # Blocks whose reads stay in the image on the tile row's last row; only
+    # the bottom tile row of an image can lose its last block this way.
+    last_row = start + (t - uint64(1)) * row
+    room = uint64(flat.size) - last_row
+    fit = (room - uint64(_BLOCK_READ)) // uint64(3 * _PIXEL_BLOCK) + uint64(1) \
+        if room >= uint64(_BLOCK_READ) else uint64(0)
+    blocks = min(covered // uint64(_PIXEL_BLOCK), fit)
+    _bin_column_sums(flat, start, row, t, blocks, table, columns)
+    for x in range(blocks * uint64(_PIXEL_BLOCK), covered):
+        i = start + x * _C
+        total = np.float32(0.0)
+        for dy in range(t):
+            total += _pixel_weight(flat, lut, i + dy * row)
+        columns[x] = total
+    for tx in range(uint64(out.size)):
+        total = np.float32(0.0)
+        for dx in range(tx * t, tx * t + t):
+            total += columns[dx]
+        out[tx] = total
+
+
 # -- box mean ----------------------------------------------------------------
 @njit(cache=True)
 def _box_pixels(flat, row_bytes, factor, scale, box_flat, box_w, oy, ox0):
@@ -243,8 +409,21 @@ def _box_rows(flat, row_bytes, factor, box_flat, box_w, oy0, oy1):
         _box_pixels(flat, row_bytes, factor, scale, box_flat, box_w, oy, blocks * _BOX_BLOCK)
 
 
+# -- driver --------------------------------------------------------------------
+#: Whether the CPU Numba compiles for has AVX-512F and BW (512-bit vpshufb and
+#: vpermi2ps), as :mod:`fastdet.kernels.resize` finds it (honouring
+#: NUMBA_CPU_NAME / NUMBA_CPU_FEATURES).  colour_maps asks for the vector path
+#: from HAVE_AVX512BW (tests switch it off); _CAN_AVX512BW, fixed at import,
+#: is a compile-time constant of _colour_maps, so the vector branch is pruned
+#: before typing where its instructions do not exist (Numba keys its cache by
+#: the target CPU).
+_CAN_AVX512BW = HAVE_AVX512BW
+
+
 @njit(cache=True, nogil=True)
-def _colour_maps(image, lut, tile, factor, want_tiles, want_box, tiles, box):
+def _colour_maps(path, image, lut, tile, factor, want_tiles, want_box, tiles, box):
+    """Fill ``tiles`` and ``box``; return the tile-sum path taken: ``path``
+    (PATH_AVX512 or PATH_SCALAR), or PATH_SCALAR if the lut has no bin table."""
     width = image.shape[1]
     row_bytes = width * 3
     flat = image.reshape(image.size)
@@ -252,11 +431,21 @@ def _colour_maps(image, lut, tile, factor, want_tiles, want_box, tiles, box):
     box_h, box_w = box.shape[0], box.shape[1]
     box_flat = box.reshape(box.size)
     quads = tile % 4 == 0
+    table = np.empty(3 * _BINS, np.float32)
+    if path == PATH_AVX512 and not (_CAN_AVX512BW and want_tiles and _bin_table(lut_flat, table)):
+        path = PATH_SCALAR
+    columns = np.empty(width if path == PATH_AVX512 else 0, np.float32)
     done = 0                                   # box rows written so far
     for ty in range(tiles.shape[0] if want_tiles else 0):
-        if quads:
+        scalar = True
+        if _CAN_AVX512BW:
+            if path == PATH_AVX512:
+                _tile_row_bins(flat, row_bytes, lut_flat, table, tile, ty * tile, columns,
+                               tiles[ty])
+                scalar = False
+        if scalar and quads:
             _tile_row_quads(flat, row_bytes, lut_flat, tile, ty * tile, tiles[ty])
-        else:
+        elif scalar:
             _tile_row_pixels(flat, row_bytes, lut_flat, tile, ty * tile, tiles[ty])
         if want_box:
             # The box rows whose source rows this tile row has just read.
@@ -266,6 +455,7 @@ def _colour_maps(image, lut, tile, factor, want_tiles, want_box, tiles, box):
                 done = ready
     if want_box and box_h > done:
         _box_rows(flat, row_bytes, factor, box_flat, box_w, done, box_h)
+    return path
 
 
 def colour_maps(image, lut=None, tile=8, factor=0):
@@ -288,6 +478,14 @@ def colour_maps(image, lut=None, tile=8, factor=0):
         Sum over each tile of ``sum_c lut[c, image[y, x, c]]``.
     box : ndarray of float32, shape (H // factor, W // factor, 3) or (0, 0, 3)
         Mean of every ``factor x factor`` tile of ``image``.
+
+    Notes
+    -----
+    Tile sums are about four times faster where each channel of ``lut`` is
+    constant on aligned runs of 8 values (``lut[c, v] == lut[c, v & ~7]``), as
+    the detector's lut is for 32 histogram bins or fewer, and Numba compiles
+    for a CPU with AVX-512BW.  Either path's sums are float32, in its own
+    fixed order.
     """
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise ValueError(f"expected a uint8 (H, W, 3) image, got {image.dtype} {image.shape}")
@@ -303,5 +501,6 @@ def colour_maps(image, lut=None, tile=8, factor=0):
     tiles = np.empty((height // tile, width // tile) if want_tiles else (0, 0), np.float32)
     box = np.empty((height // factor, width // factor, 3) if want_box else (0, 0, 3), np.float32)
     lut = np.zeros((3, 256), np.float32) if lut is None else np.ascontiguousarray(lut, np.float32)
-    _colour_maps(image, lut, int(tile), int(factor), want_tiles, want_box, tiles, box)
+    path = PATH_AVX512 if HAVE_AVX512BW else PATH_SCALAR
+    _colour_maps(path, image, lut, int(tile), int(factor), want_tiles, want_box, tiles, box)
     return tiles, box
