@@ -3,10 +3,13 @@
 The intrinsics (``hog``, ``resize``, ``colour``, ``convert``, ``score``) read
 and write vectors at arbitrary element offsets of Numba arrays: a pointer to
 element ``index`` cast to the vector type.  ``score``'s also broadcast scalars
-and emit loops whose trip counts are only known at run time.
+and emit loops whose trip counts are only known at run time.  The ``HAVE_*``
+flags say which x86 instruction sets those with target-specific paths may use.
 Numba's on-disk cache is keyed on the files of the kernels that use them,
 not on this one: after changing these, touch those modules.
 """
+
+import platform
 
 from llvmlite import ir
 
@@ -60,3 +63,31 @@ def counted_loop(builder, count, initial, body):
     builder.branch(head)
     builder.position_at_end(done)
     return values
+
+
+def _has_feature(name):
+    """Whether the CPU Numba compiles for has ``name``.
+
+    That is the host unless ``NUMBA_CPU_NAME`` / ``NUMBA_CPU_FEATURES`` select
+    another target (portable caches, containers): then only features listed
+    in ``NUMBA_CPU_FEATURES`` count, and with a CPU name alone none do.
+    """
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        return False
+    from numba.core import config
+    if config.CPU_FEATURES:
+        return f"+{name}" in config.CPU_FEATURES.split(",")
+    if config.CPU_NAME:
+        return False
+    try:
+        from llvmlite import binding
+        return f"+{name}" in binding.get_host_cpu_features().flatten().split(",")
+    except Exception:  # noqa: BLE001 - no feature list: take the portable path
+        return False
+
+
+#: Instruction sets of the CPU Numba compiles for, which pick the kernels'
+#: vector paths (resize's horizontal pass, colour's bin-table tile sums).
+HAVE_SSSE3 = _has_feature("ssse3")
+HAVE_AVX2 = HAVE_SSSE3 and _has_feature("avx2")
+HAVE_AVX512BW = HAVE_AVX2 and _has_feature("avx512f") and _has_feature("avx512bw")

@@ -66,8 +66,7 @@ from numba import njit, types, uint64
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ._llvm import load_vector, store_vector
-from .resize import HAVE_AVX512BW
+from ._llvm import HAVE_AVX512BW, load_vector, store_vector
 
 _C = uint64(3)
 _BYTE = uint64(255)

@@ -46,14 +46,13 @@ Other platforms use the scalar horizontal loop (same result, slower).
 """
 
 import functools
-import platform
 
 import numpy as np
 from llvmlite import ir
 from numba import njit, types, uint64
 from numba.extending import intrinsic
 
-from ._llvm import load_vector, store_vector
+from ._llvm import HAVE_AVX2, HAVE_AVX512BW, HAVE_SSSE3, load_vector, store_vector
 
 #: OpenCV's INTER_RESIZE_COEF_SCALE (11 fractional bits).
 _COEF_SCALE = np.float32(2048)
@@ -65,33 +64,6 @@ _WINDOW = 16
 #: Output values per vertical block.
 _VBLOCK = 32
 
-
-def _has_feature(name):
-    """Whether the CPU Numba compiles for has ``name``.
-
-    That is the host unless ``NUMBA_CPU_NAME`` / ``NUMBA_CPU_FEATURES`` select
-    another target (portable caches, containers): then only features listed
-    in ``NUMBA_CPU_FEATURES`` count, and with a CPU name alone none do.
-    """
-    if platform.machine().lower() not in ("x86_64", "amd64"):
-        return False
-    from numba.core import config
-    if config.CPU_FEATURES:
-        return f"+{name}" in config.CPU_FEATURES.split(",")
-    if config.CPU_NAME:
-        return False
-    try:
-        from llvmlite import binding
-        return f"+{name}" in binding.get_host_cpu_features().flatten().split(",")
-    except Exception:  # noqa: BLE001 - no feature list: take the portable path
-        return False
-
-
-#: Whether the pshufb/pmaddwd horizontal path is used on the target CPU, and
-#: whether it does two groups per 256-bit instruction.
-HAVE_SSSE3 = _has_feature("ssse3")
-HAVE_AVX2 = HAVE_SSSE3 and _has_feature("avx2")
-HAVE_AVX512BW = HAVE_AVX2 and _has_feature("avx512f") and _has_feature("avx512bw")
 
 #: Output values per AVX-512 block: 16 int32 sums from a 64-byte window.
 _BLOCK = 16
