@@ -19,9 +19,10 @@ own kernel, reading maps computed once per scale:
 Window ``(iy, ix)`` has its top-left pixel at ``(iy * step_px, ix * step_px)``
 of the scale's image (``step_px`` = cells per step x pixels per cell).
 
-Where the phase-layout scorer's time goes (one thread, Xeon with AVX-512,
-the five default scales of a 1280x720 frame: 1.4 M normalised block values,
-861 windows): about 0.75 ms, down from 2.3 ms with loops Numba vectorised.
+Where the phase-layout scorer's time goes (one thread, Xeon with AVX-512):
+on the published five scales of a 1280x720 frame (1.4 M normalised block
+values, 861 windows) about 0.75 ms, down from 2.3 ms with loops Numba
+vectorised; 0.8-0.95 ms on the default search's 1020 windows.
 Two blocks of LLVM vector IR do the work, 16 block positions or windows per
 vector: :func:`_normalise_blocks` (about 0.4 ms) and :func:`_window_dots`
 (about 0.3 ms).  Both are bound by moving the normalised block row (up to
