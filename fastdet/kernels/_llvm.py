@@ -26,6 +26,33 @@ def store_vector(builder, value, data, index, align=1):
     builder.store(value, pointer, align=align)
 
 
+def box_sums(builder, rows, factor, channels):
+    """Sums of ``factor x factor`` pixel boxes, as 16-bit lanes.
+
+    ``rows`` are ``factor`` byte vectors, the same run of
+    ``factor * n * channels`` bytes (``n`` output pixels of interleaved
+    channels) from consecutive image rows.  Each is widened to 16 bits and
+    the rows added; constant shuffles then pick each output value's
+    ``factor`` column sums, which are added: lane ``channels * o + c`` holds
+    output pixel ``o``'s channel ``c``.  Sums of up to 256 bytes fit.
+    """
+    n_in = rows[0].type.count
+    n_out = n_in // factor
+    words_in = ir.VectorType(ir.IntType(16), n_in)
+    column = None
+    for row in rows:
+        wide = builder.zext(row, words_in)
+        column = wide if column is None else builder.add(column, wide)
+    undef = ir.Constant(words_in, ir.Undefined)
+    mask_type = ir.VectorType(ir.IntType(32), n_out)
+    total = None
+    for dx in range(factor):
+        mask = [channels * (factor * (k // channels) + dx) + k % channels for k in range(n_out)]
+        pick = builder.shuffle_vector(column, undef, ir.Constant(mask_type, mask))
+        total = pick if total is None else builder.add(total, pick)
+    return total
+
+
 def splat(builder, value, vector_type):
     """``value`` (a scalar of the element type) in every lane of ``vector_type``."""
     undef = ir.Constant(vector_type, ir.Undefined)

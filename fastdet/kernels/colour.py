@@ -66,7 +66,7 @@ from numba import njit, types, uint64
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ._llvm import HAVE_AVX512BW, load_vector, store_vector
+from ._llvm import HAVE_AVX512BW, box_sums, load_vector, store_vector
 
 _C = uint64(3)
 _BYTE = uint64(255)
@@ -115,15 +115,15 @@ def _box_block(factor):
     dest[out + 3 * o + c], from the ``factor`` rows starting at flat[top],
     flat[top + row_bytes], ... (reading ``3 * factor * _BOX_BLOCK`` bytes of each).
 
-    One block of LLVM vector IR: widen each row run to 16 bits, add the rows,
-    pick each of the ``factor`` pixels of every output pixel with a constant
-    shuffle, add, convert, scale.  Numba's loop vectoriser only manages slow
+    One block of LLVM vector IR: the box sums of
+    :func:`fastdet.kernels._llvm.box_sums` (rows widened to 16 bits and
+    added, each output pixel's ``factor`` columns picked by constant shuffles
+    and added), converted and scaled.  Numba's loop vectoriser only manages slow
     gathers or long shuffle chains for these strided patterns (and its SLP
     vectoriser is off).  Sums of up to 16 x 16 bytes fit 16 bits.
     """
     assert 1 <= factor <= 16
     n_in, n_out = 3 * factor * _BOX_BLOCK, 3 * _BOX_BLOCK
-    picks = [[3 * (factor * (k // 3) + dx) + k % 3 for k in range(n_out)] for dx in range(factor)]
     # Same rounding as sum * np.float32(1 / factor**2) in float32.
     scale = float(np.float32(1.0 / (factor * factor)))
 
@@ -131,19 +131,14 @@ def _box_block(factor):
         flat = context.make_array(signature.args[0])(context, builder, args[0])
         dest = context.make_array(signature.args[3])(context, builder, args[3])
         top, row_bytes, out = args[1], args[2], args[4]
-        i16, i32, f32 = ir.IntType(16), ir.IntType(32), ir.FloatType()
-        bytes_in, words_in = ir.VectorType(ir.IntType(8), n_in), ir.VectorType(i16, n_in)
-        column = None
-        for dy in range(factor):
-            start = builder.add(top, builder.mul(row_bytes, ir.Constant(row_bytes.type, dy)))
-            row = builder.zext(load_vector(builder, flat.data, start, bytes_in), words_in)
-            column = row if column is None else builder.add(column, row)
-        undef = ir.Constant(words_in, ir.Undefined)
-        mask_type = ir.VectorType(i32, n_out)
-        total = None
-        for mask in picks:
-            pick = builder.shuffle_vector(column, undef, ir.Constant(mask_type, mask))
-            total = pick if total is None else builder.add(total, pick)
+        f32 = ir.FloatType()
+        bytes_in = ir.VectorType(ir.IntType(8), n_in)
+        rows = [load_vector(builder, flat.data,
+                            builder.add(top, builder.mul(row_bytes,
+                                                         ir.Constant(row_bytes.type, dy))),
+                            bytes_in)
+                for dy in range(factor)]
+        total = box_sums(builder, rows, factor, 3)
         floats = ir.VectorType(f32, n_out)
         mean = builder.fmul(builder.uitofp(total, floats), ir.Constant(floats, [scale] * n_out))
         store_vector(builder, mean, dest.data, out, align=4)

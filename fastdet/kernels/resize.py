@@ -53,7 +53,7 @@ from llvmlite import ir
 from numba import njit, types, uint64
 from numba.extending import intrinsic
 
-from ._llvm import HAVE_AVX2, HAVE_AVX512BW, HAVE_SSSE3, load_vector, store_vector
+from ._llvm import HAVE_AVX2, HAVE_AVX512BW, HAVE_SSSE3, box_sums, load_vector, store_vector
 
 #: OpenCV's INTER_RESIZE_COEF_SCALE (11 fractional bits).
 _COEF_SCALE = np.float32(2048)
@@ -500,31 +500,23 @@ def _halve_block(channels):
     ``(a + b + c + d + 2) >> 2`` of 2x2 source pixels, from the
     ``2 * _HALF_BLOCK`` bytes at ``upper[start:]`` and ``lower[start:]``.
 
-    One block of LLVM vector IR: widen both rows to 16 bits and add them,
-    pick each output value's two column sums with constant shuffles, add,
-    round, narrow.
+    One block of LLVM vector IR: the 2x2 sums of
+    :func:`fastdet.kernels._llvm.box_sums`, then round and narrow.
     """
     n_out = _HALF_BLOCK
     n_in = 2 * n_out
-    picks = [[channels * (2 * (k // channels) + dx) + k % channels for k in range(n_out)]
-             for dx in range(2)]
 
     def codegen(context, builder, signature, args):
         upper, lower, dest = [context.make_array(signature.args[k])(context, builder, args[k]).data
                               for k in (0, 1, 3)]
         start, out = args[2], args[4]
-        i8, i16, i32 = ir.IntType(8), ir.IntType(16), ir.IntType(32)
-        bytes_in, words_in = ir.VectorType(i8, n_in), ir.VectorType(i16, n_in)
-        words_out = ir.VectorType(i16, n_out)
-        column = builder.add(builder.zext(load_vector(builder, upper, start, bytes_in), words_in),
-                             builder.zext(load_vector(builder, lower, start, bytes_in), words_in))
-        undef = ir.Constant(words_in, ir.Undefined)
-        left, right = [builder.shuffle_vector(column, undef,
-                                              ir.Constant(ir.VectorType(i32, n_out), mask))
-                       for mask in picks]
+        bytes_in = ir.VectorType(ir.IntType(8), n_in)
+        words_out = ir.VectorType(ir.IntType(16), n_out)
+        total = box_sums(builder, [load_vector(builder, upper, start, bytes_in),
+                                   load_vector(builder, lower, start, bytes_in)], 2, channels)
         two = ir.Constant(words_out, [2] * n_out)
-        mean = builder.lshr(builder.add(builder.add(left, right), two), two)
-        store_vector(builder, builder.trunc(mean, ir.VectorType(i8, n_out)), dest, out)
+        mean = builder.lshr(builder.add(total, two), two)
+        store_vector(builder, builder.trunc(mean, ir.VectorType(ir.IntType(8), n_out)), dest, out)
         return context.get_dummy_value()
 
     def block(typingctx, upper, lower, start, dest, out):
