@@ -37,7 +37,6 @@ from numba import njit, prange, types, uint64
 from numba.extending import intrinsic
 
 from ._llvm import counted_loop, load_vector, splat, store_vector
-
 from .blocks import EPS, NORM_CODES
 from .hog import to_phase_layout
 
