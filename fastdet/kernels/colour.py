@@ -405,7 +405,7 @@ def _box_rows(flat, row_bytes, factor, box_flat, box_w, oy0, oy1):
 
 # -- driver --------------------------------------------------------------------
 #: Whether the CPU Numba compiles for has AVX-512F and BW (512-bit vpshufb and
-#: vpermi2ps), as :mod:`fastdet.kernels.resize` finds it (honouring
+#: vpermi2ps), as :mod:`fastdet.kernels._llvm` finds it (honouring
 #: NUMBA_CPU_NAME / NUMBA_CPU_FEATURES).  colour_maps asks for the vector path
 #: from HAVE_AVX512BW (tests switch it off); _CAN_AVX512BW, fixed at import,
 #: is a compile-time constant of _colour_maps, so the vector branch is pruned
