@@ -299,62 +299,60 @@ def _hvalue(row, first, second, w_first, w_second, dest, e):
 
 
 @njit(cache=True)
+def _hgroups(row, first, second, w_first, w_second, base, usable, masks, weights, dest, g0,
+             g1):
+    """Groups g0 .. g1 - 1 one at a time: a pshufb group where its sources fit
+    a window, else its 4 values by the scalar loop."""
+    for g in range(g0, g1):
+        if usable[g]:
+            _hgroup(row, uint64(base[g]), masks, weights, dest, g)
+        else:
+            for e in range(g * uint64(4), g * uint64(4) + uint64(4)):
+                _hvalue(row, first, second, w_first, w_second, dest, e)
+
+
+@njit(cache=True)
+def _hrest(row, first, second, w_first, w_second, dest, e0):
+    """The values past the last whole group, by the scalar loop."""
+    for e in range(e0, uint64(dest.size)):
+        _hvalue(row, first, second, w_first, w_second, dest, e)
+
+
+@njit(cache=True)
 def _horizontal_avx2(row, first, second, w_first, w_second, base, usable, masks, weights,
                      block_base, picks, dest):
-    n = uint64(dest.size)
     groups = uint64(usable.size)
     for g in range(uint64(0), groups & ~uint64(1), uint64(2)):
         g1 = g + uint64(1)
         if usable[g] & usable[g1]:
             _hpair(row, uint64(base[g]), uint64(base[g1]), masks, weights, dest, g)
-            continue
-        for h in range(g, g + uint64(2)):
-            if usable[h]:
-                _hgroup(row, uint64(base[h]), masks, weights, dest, h)
-            else:
-                for e in range(h * uint64(4), h * uint64(4) + uint64(4)):
-                    _hvalue(row, first, second, w_first, w_second, dest, e)
-    for g in range(groups & ~uint64(1), groups):
-        if usable[g]:
-            _hgroup(row, uint64(base[g]), masks, weights, dest, g)
         else:
-            for e in range(g * uint64(4), g * uint64(4) + uint64(4)):
-                _hvalue(row, first, second, w_first, w_second, dest, e)
-    for e in range(groups * uint64(4), n):
-        _hvalue(row, first, second, w_first, w_second, dest, e)
+            _hgroups(row, first, second, w_first, w_second, base, usable, masks, weights, dest,
+                     g, g + uint64(2))
+    _hgroups(row, first, second, w_first, w_second, base, usable, masks, weights, dest,
+             groups & ~uint64(1), groups)
+    _hrest(row, first, second, w_first, w_second, dest, groups * uint64(4))
 
 
 @njit(cache=True)
 def _horizontal_avx512(row, first, second, w_first, w_second, base, usable, masks, weights,
                        block_base, picks, dest):
-    n = uint64(dest.size)
     blocks = uint64(block_base.size)
     for b in range(blocks):
         _hblock(row, uint64(block_base[b]), picks, weights, dest, b)
     groups = uint64(usable.size)
-    for g in range(blocks * uint64(4), groups):
-        if usable[g]:
-            _hgroup(row, uint64(base[g]), masks, weights, dest, g)
-        else:
-            for e in range(g * uint64(4), g * uint64(4) + uint64(4)):
-                _hvalue(row, first, second, w_first, w_second, dest, e)
-    for e in range(groups * uint64(4), n):
-        _hvalue(row, first, second, w_first, w_second, dest, e)
+    _hgroups(row, first, second, w_first, w_second, base, usable, masks, weights, dest,
+             blocks * uint64(4), groups)
+    _hrest(row, first, second, w_first, w_second, dest, groups * uint64(4))
 
 
 @njit(cache=True)
 def _horizontal_ssse3(row, first, second, w_first, w_second, base, usable, masks, weights,
                       block_base, picks, dest):
-    n = uint64(dest.size)
     groups = uint64(usable.size)
-    for g in range(groups):
-        if usable[g]:
-            _hgroup(row, uint64(base[g]), masks, weights, dest, g)
-        else:
-            for e in range(g * uint64(4), g * uint64(4) + uint64(4)):
-                _hvalue(row, first, second, w_first, w_second, dest, e)
-    for e in range(groups * uint64(4), n):
-        _hvalue(row, first, second, w_first, w_second, dest, e)
+    _hgroups(row, first, second, w_first, w_second, base, usable, masks, weights, dest,
+             uint64(0), groups)
+    _hrest(row, first, second, w_first, w_second, dest, groups * uint64(4))
 
 
 @njit(cache=True)
