@@ -12,8 +12,8 @@ import os
 
 import numpy as np
 
-from fastdet.bench import read_frames, resize_frame
-from fastdet.shared_data import data_dir
+from fastdet.bench.timing import read_frames, resize_frame
+from fastdet.files.shared_data import data_dir
 
 #: Frame sizes the kernel benchmarks are parametrised over, as asv labels.
 SIZES = {"640x360": (640, 360), "1280x720": (1280, 720), "1920x1080": (1920, 1080),
@@ -37,7 +37,7 @@ def bench_model():
     NotImplementedError
         (asv's skip) when neither loads.
     """
-    from fastdet.model import load_model
+    from fastdet.detector.model import load_model
 
     try:
         return load_model(model_path())

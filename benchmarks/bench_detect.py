@@ -22,8 +22,8 @@ from pathlib import Path
 import numba
 
 # The module, not its functions: asv would take time_* names here for benchmarks.
-from fastdet import bench as fastdet_bench
-from fastdet.detect import Detector
+from fastdet.bench import peers, timing
+from fastdet.detector.detector import Detector
 
 from ._common import bench_model, skip_if_missing, skip_reason, spread, video_frames
 
@@ -93,8 +93,8 @@ class ReferenceRatio:
         frames = spread(video_frames(), REFERENCE_FRAMES)
         indices = list(range(len(frames)))
         detector = Detector(bench_model(), threads=1)
-        fastdet = fastdet_bench.time_fastdet(detector, frames, repeat=3)
-        reference = fastdet_bench.time_callable("reference", ReferenceDetector(bench_model()),
+        fastdet = timing.time_fastdet(detector, frames, repeat=3)
+        reference = timing.time_callable("reference", ReferenceDetector(bench_model()),
                                                 frames, indices, fastdet.windows_per_frame)
         return {"fastdet": fastdet.median_ms / 1e3, "reference": reference.median_ms / 1e3}
 
@@ -127,16 +127,16 @@ class OpenCVPeer:
     timeout = 1800
 
     def setup_cache(self):
-        if fastdet_bench.opencv_peer_python() is None:
+        if peers.opencv_peer_python() is None:
             return {"skip": "OpenCV peer environment missing: run "
                             "`bash benchmarks/opencv_peer/setup.sh`"}
         if skip_reason(bench_model):
             return {"skip": skip_reason(bench_model)}
         frames = list(video_frames())
         detector = Detector(bench_model(), threads=1)
-        fastdet = fastdet_bench.time_fastdet(detector, frames, repeat=3)
+        fastdet = timing.time_fastdet(detector, frames, repeat=3)
         plans = detector.plans((frames[0].shape[1], frames[0].shape[0]))
-        results, _ = fastdet_bench.run_opencv_peer(frames, plans, threads=(1,), repeat=3,
+        results, _ = peers.run_opencv_peer(frames, plans, threads=(1,), repeat=3,
                                                    peer_script=PEER_SCRIPT)
         by_mode = {("same" if "same windows" in r.name else "native"): r for r in results}
         return {"fastdet": fastdet.median_ms / 1e3, "same": by_mode["same"].median_ms / 1e3,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 
 import fastdet
-from fastdet.bench_study import hog_vs_skimage
+from fastdet.bench.hog_compare import hog_vs_skimage
 
 from ._common import SIZES, test_frame
 

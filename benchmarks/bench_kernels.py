@@ -17,8 +17,12 @@ from fastdet.kernels.blocks import normalize_blocks
 from fastdet.kernels.heat import accumulate_heat
 from fastdet.kernels.hog import cell_histograms
 from fastdet.kernels.label import component_boxes, label_components
-from fastdet.kernels.score import (add_hog_scores, add_hog_scores_from_phase_cells,
-                                   phase_scoring_pad, window_count)
+from fastdet.kernels.score import (
+    add_hog_scores,
+    add_hog_scores_from_phase_cells,
+    phase_scoring_pad,
+    window_count,
+)
 
 from ._common import SIZES, test_frame
 

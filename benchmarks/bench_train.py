@@ -9,9 +9,10 @@ benchmark runs once (the fit alone takes about a minute).
 
 from __future__ import annotations
 
-from fastdet.features import FeatureOptions, features_of_crops
-from fastdet.shared_data import data_dir
-from fastdet.train import fit_linear_svm, list_dataset, load_crops
+from fastdet.detector.features import FeatureOptions, features_of_crops
+from fastdet.files.shared_data import data_dir
+from fastdet.training.dataset import list_dataset, load_crops
+from fastdet.training.train import fit_linear_svm
 
 from ._common import bench_model
 

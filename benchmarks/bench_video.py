@@ -1,6 +1,6 @@
 """Video end to end: decode the shared test video and run the video pipeline.
 
-Frames per second of ``fastdet.VideoPipeline`` (``fastdet.track``) over all 38
+Frames per second of ``fastdet.VideoPipeline`` (``fastdet.video.pipeline``) over all 38
 frames of ``test_video.mp4``, decoding included (writing excluded), with
 detection on every frame, every 5th frame (the boxes reused between), and
 every 5th frame plus patch tracking in between.  As in ``fastdet run``, frames
@@ -15,7 +15,7 @@ import time
 import numba
 
 import fastdet
-from fastdet.detect import Detector
+from fastdet.detector.detector import Detector
 
 from ._common import bench_model, video_path
 
@@ -28,13 +28,13 @@ def video_pipeline_api():
     """``(VideoPipeline, TrackConfig)``, or NotImplementedError if fastdet has none."""
     pipeline = getattr(fastdet, "VideoPipeline", None)
     try:
-        from fastdet.track import TrackConfig
-        from fastdet.track import VideoPipeline as TrackPipeline
+        from fastdet.video.config import TrackConfig
+        from fastdet.video.pipeline import VideoPipeline as TrackPipeline
     except ImportError:
         TrackConfig = TrackPipeline = None
     pipeline = pipeline or TrackPipeline
     if pipeline is None or TrackConfig is None:
-        raise NotImplementedError("this fastdet has no VideoPipeline (fastdet.track)")
+        raise NotImplementedError("this fastdet has no VideoPipeline (fastdet.video.pipeline)")
     return pipeline, TrackConfig
 
 
@@ -45,7 +45,7 @@ def decoded_frames(path, skip=None):
     BGR conversion of frames the pipeline will not look at.
     """
     try:
-        from fastdet.video import VideoReader
+        from fastdet.video.reader import VideoReader
     except ImportError:
         VideoReader = None
     if VideoReader is not None:

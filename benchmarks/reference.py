@@ -17,13 +17,13 @@ per search scale:
    shape correction) are not part of the published pipeline and are ignored.
 
 :class:`ReferenceDetector` does exactly that, but from a fastdet
-:class:`~fastdet.model.Model` and :class:`~fastdet.config.DetectorConfig`:
+:class:`~fastdet.detector.model.Model` and :class:`~fastdet.detector.config.DetectorConfig`:
 regions, resized sizes, steps and window grids come from
-:func:`fastdet.detect.plan_scales`, features are stacked in fastdet's
-:class:`~fastdet.features.FeatureLayout` order, and the scikit-learn objects
+:func:`fastdet.detector.plan.plan_scales`, features are stacked in fastdet's
+:class:`~fastdet.detector.features.FeatureLayout` order, and the scikit-learn objects
 are built from the model's weights (the model has the training scaler folded
 in, so the scaler here is the identity).  Its results therefore equal
-:class:`fastdet.detect.Detector`'s up to float rounding, while its cost per
+:class:`fastdet.detector.detector.Detector`'s up to float rounding, while its cost per
 window is that of the published code: it is the slow peer in benchmarks and
 an independent check of the fast kernels.
 
@@ -43,11 +43,12 @@ import skimage.feature
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import LinearSVC
 
-from fastdet.config import DetectorConfig
-from fastdet.detect import as_bgr_frame, plan_scales
-from fastdet.detections import Detections
-from fastdet.features import WINDOW, FeatureLayout, convert_color
-from fastdet.model import Model, load_model
+from fastdet.detector.config import DetectorConfig
+from fastdet.detector.detections import Detections
+from fastdet.detector.features import WINDOW, FeatureLayout, convert_color
+from fastdet.detector.frames import as_bgr_frame
+from fastdet.detector.model import Model, load_model
+from fastdet.detector.plan import plan_scales
 
 
 def sklearn_classifier(model):
@@ -197,7 +198,7 @@ class ReferenceDetector:
         ----------
         frame : ndarray of uint8, shape (H, W, 3)
             BGR frame.
-        plan : fastdet.detect.ScalePlan
+        plan : fastdet.detector.plan.ScalePlan
 
         Returns
         -------
@@ -305,7 +306,7 @@ class ReferenceDetector:
     def box_filter(self, boxes, frame_size):
         """Boolean mask of the boxes that pass the ``[boxes]`` sanity filters.
 
-        Same rules as ``fastdet.detect.Detector.box_filter``: minimum width
+        Same rules as ``fastdet.detector.boxes.BoxFinder.box_filter``: minimum width
         and height, allowed aspect ratio, and a bottom edge below the
         horizon line, all scaled from the reference frame size.
         """

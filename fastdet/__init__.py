@@ -8,15 +8,16 @@ Public API::
     for index, frame, boxes, track_ids in pipeline(frames): ...
 """
 
-from .config import DetectorConfig, load_config
-from .detect import Detector
-from .detections import Detections
+from .detector.config import DetectorConfig, load_config
+from .detector.detections import Detections
+from .detector.detector import Detector
+from .detector.features import FeatureOptions
+from .detector.hog_api import hog
+from .detector.model import Model, load_model
 from .errors import ConfigError, FastdetError, InputError, ModelError
-from .features import FeatureOptions
-from .hog_api import hog
-from .model import Model, load_model
-from .track import TrackConfig, VideoPipeline, load_track_config
-from .train import train
+from .training.train import train
+from .video.config import TrackConfig, load_track_config
+from .video.pipeline import VideoPipeline
 
 __version__ = "0.1.0"
 

@@ -19,3 +19,7 @@ class ModelError(FastdetError, ValueError):
 
 class ConfigError(FastdetError, ValueError):
     """An invalid configuration file or value."""
+
+
+class MissingExtraError(FastdetError, ImportError):
+    """An optional part of fastdet whose extra (``pip install 'fastdet[...]'``) is not installed."""

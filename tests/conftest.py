@@ -8,7 +8,7 @@ import pytest
 # Tests import their naive references as ``from naive import ...``.
 sys.path.insert(0, str(Path(__file__).parent))
 
-from fastdet.shared_data import data_dir as _data_dir  # noqa: E402
+from fastdet.files.shared_data import data_dir as _data_dir  # noqa: E402
 
 
 @pytest.fixture(scope="session")

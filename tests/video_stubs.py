@@ -2,7 +2,7 @@
 
 A "vehicle" is a rectangle of randomly coloured, fully saturated pixels on an
 unsaturated noisy grey background.  :class:`BlockDetector` has the methods
-:class:`fastdet.track.VideoPipeline` uses and reports every saturated blob as
+:class:`fastdet.video.pipeline.VideoPipeline` uses and reports every saturated blob as
 two identical hit windows, so the heat map (threshold 1) gives back exactly
 the blob's bounding box.
 """
@@ -12,8 +12,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from fastdet.detect import Hits
-from fastdet.detections import Detections
+from fastdet.detector.detections import Detections
+from fastdet.detector.scoring import Hits
 from fastdet.kernels.heat import accumulate_heat
 from fastdet.kernels.label import component_boxes, component_max, label_components
 

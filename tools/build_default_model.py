@@ -5,7 +5,7 @@ Run from the checkout's root (``FASTDET_DATA`` or ../shared/data)::
     python tools/build_default_model.py [--work DIR]
 
 1. train a first model on ``vehicles/`` and ``non-vehicles/`` (flipped and
-   jittered copies of the training crops, see ``fastdet.train``);
+   jittered copies of the training crops, see ``fastdet.training.train``);
 2. mine its false hits on the annotated frames of ``test_video.mp4``
    (``tests/data/test_video_annotations.json``, our own annotations; the test
    images are never used for training or tuning) at a low decision threshold,
@@ -26,9 +26,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from fastdet.cli import main as fastdet  # noqa: E402
-from fastdet.features import FeatureOptions  # noqa: E402
-from fastdet.shared_data import data_dir  # noqa: E402
+from fastdet.cli.app import main as fastdet  # noqa: E402
+from fastdet.detector.features import FeatureOptions  # noqa: E402
+from fastdet.files.shared_data import data_dir  # noqa: E402
 
 #: Feature options of the bundled model (chosen by the colour-space study).
 OPTIONS = FeatureOptions()

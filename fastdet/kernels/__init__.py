@@ -5,7 +5,7 @@ that made the parallel kernels (``parallel=True`` options, used for training
 features) several times slower than one thread, so unless the user chose a
 layer (``NUMBA_THREADING_LAYER``) the portable ``workqueue`` layer is used.
 The detector itself runs only serial kernels, from a pool of threads (see
-``fastdet.detect``): workqueue must not start parallel kernels from several
+``fastdet.detector.detector``): workqueue must not start parallel kernels from several
 threads at once.
 """
 

@@ -4,7 +4,7 @@ Blocks of ``cpb_y x cpb_x`` cells, stepped one cell at a time, are normalised
 per channel with one of scikit-image's four schemes.  The output keeps every
 block's features contiguous, ordered ``(channel, cell_y, cell_x, bin)``, so a
 detection window is ``blocks[by:by + n, bx:bx + n]`` read row by row: the same
-order the training features use (see ``fastdet.features``).
+order the training features use (see ``fastdet.detector.features``).
 """
 
 import numpy as np

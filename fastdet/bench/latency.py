@@ -1,0 +1,163 @@
+"""The latency comparison of ``fastdet bench``: fastdet per thread count against its peers.
+
+The slow reference is timed on a subsample of the frames and compared with
+fastdet's times on exactly those frames; OpenCV is timed on every frame.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+from dataclasses import dataclass, field
+
+from ..detector.detector import Detector
+from ..errors import InputError
+from .peers import load_reference_module, run_opencv_peer
+from .timing import STAGE_LABELS, fastdet_name, speedup, spread_indices, time_callable, time_fastdet
+
+
+# -- the comparison -----------------------------------------------------------
+@dataclass
+class BenchmarkRun:
+    """Everything one ``fastdet bench`` comparison measured."""
+
+    results: list
+    frame_count: int
+    frame_size: tuple
+    plans: tuple
+    notes: list = field(default_factory=list)
+    opencv: dict | None = None
+
+    def get(self, name):
+        return next((r for r in self.results if r.name == name), None)
+
+    @property
+    def reference(self):
+        return self.get("reference")
+
+    @property
+    def opencv_same_windows(self):
+        """OpenCV on exactly fastdet's windows with one thread: the ratio's baseline."""
+        return self.get("opencv same windows, 1 thread")
+
+
+def run_benchmark(frames, threads=(1,), repeat=3, reference_frames=5, opencv=True,
+                  model=None, config=None, log=print):
+    """Time fastdet (per thread count) and its peers on the same frames.
+
+    Parameters
+    ----------
+    frames : list of ndarray
+        Decoded BGR frames of one size.
+    threads : sequence of int
+        Thread counts to time fastdet with.
+    repeat : int
+        Timed calls per frame for fastdet and OpenCV (median kept).
+    reference_frames : int
+        Frames (spread over the video) the slow reference is timed on; 0
+        skips it.
+    opencv : bool
+        Also time the OpenCV peer (skipped with a note when not set up).
+    model, config
+        As for :class:`~fastdet.detector.detector.Detector` (``None``: bundled model,
+        built-in config).
+    log : callable
+        Receives progress and skip notes.
+
+    Returns
+    -------
+    BenchmarkRun
+    """
+    size = (frames[0].shape[1], frames[0].shape[0])
+    notes = []
+    threads = sorted(set(threads))
+
+    def fastdet_run(count):
+        # Detector() sets the process-wide thread count: time it right away.
+        detector = Detector(model=model, config=config, threads=count)
+        log(f"timing {fastdet_name(detector.threads)} on {len(frames)} frames ...")
+        return detector, time_fastdet(detector, frames, repeat, fastdet_name(detector.threads))
+
+    # One thread first, peers next, more threads last: an OpenMP pool keeps
+    # spinning for a while after a parallel region and would slow whatever
+    # runs right after it on a busy machine.
+    detector, first = fastdet_run(threads[0])
+    fastdet_results, peer_results = [first], []
+    plans = detector.plans(size)
+    model_obj, config_obj = detector.model, detector.config
+    Detector(model=model_obj, config=config_obj, threads=1)  # peers get one thread too
+
+    if reference_frames:
+        reference = load_reference_module()
+        if reference is None:
+            notes.append("reference skipped: needs the checkout's benchmarks/reference.py "
+                         "(run from the checkout)")
+        else:
+            indices = spread_indices(len(frames), reference_frames)
+            log(f"timing the reference on frames {indices} ...")
+            peer = reference.ReferenceDetector(model_obj, config_obj)
+            peer_results.append(time_callable("reference", peer, frames, indices,
+                                              first.windows_per_frame))
+    opencv_report = None
+    if opencv:
+        if model_obj.options.pixels_per_cell != 8:
+            notes.append("OpenCV peer skipped: it needs 8-pixel cells")
+        else:
+            try:
+                log("timing the OpenCV HOGDescriptor peer (its own environment) ...")
+                opencv_results, opencv_report = run_opencv_peer(frames, plans, threads, repeat)
+                peer_results.extend(opencv_results)
+            except (InputError, subprocess.TimeoutExpired) as exc:
+                notes.append(f"OpenCV peer skipped: {exc}")
+    for count in threads[1:]:
+        fastdet_results.append(fastdet_run(count)[1])
+    results = fastdet_results + peer_results
+    for note in notes:
+        log(note)
+    return BenchmarkRun(results, len(frames), size, plans, notes, opencv_report)
+
+
+# -- tables ---------------------------------------------------------------------
+def _ratio(value):
+    if not math.isfinite(value):
+        return "n/a"
+    # Two significant digits below 1 (the reference is ~0.01x of OpenCV).
+    return f"{value:.1f}x" if value >= 1 else f"{value:.2g}x"
+
+
+def format_table(run):
+    """Markdown table: latency, windows and same-frame ratios of every pipeline."""
+    reference, opencv = run.reference, run.opencv_same_windows
+    lines = ["| pipeline | frames | median ms | min ms | max ms | windows/frame "
+             "| x faster than reference | x faster than OpenCV (same windows, 1 thread) |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for result in run.results:
+        lines.append(f"| {result.name} | {len(result.seconds)} | {result.median_ms:.2f} "
+                     f"| {result.min_ms:.2f} | {result.max_ms:.2f} "
+                     f"| {result.windows_per_frame:.0f} | {_ratio(speedup(reference, result))} "
+                     f"| {_ratio(speedup(opencv, result))} |")
+    return "\n".join(lines)
+
+
+def stage_split(result):
+    """fastdet's mean milliseconds per stage, with the unaccounted rest as Python overhead."""
+    named = {label: result.stages.get(stage, 0.0) for stage, label in STAGE_LABELS.items()}
+    total = result.stages.get("total", 0.0)
+    named["python overhead"] = max(total - sum(named.values()), 0.0)
+    named["total"] = total
+    return named
+
+
+def format_stages(results):
+    """Markdown table of fastdet's stage split (ms per frame, mean over timed calls)."""
+    rows = [r for r in results if r.stages]
+    if not rows:
+        return ""
+    columns = list(stage_split(rows[0]))
+    lines = ["| stage (ms/frame) | " + " | ".join(columns) + " |",
+             "|---|" + "---:|" * len(columns)]
+    for result in rows:
+        split = stage_split(result)
+        lines.append(f"| {result.name} | " + " | ".join(f"{split[c]:.2f}" for c in columns)
+                     + " |")
+    return "\n".join(lines)

@@ -1,0 +1,144 @@
+"""``fastdet bench``: the command that times fastdet against its peers.
+
+Prints markdown: the latency table (fastdet per thread count, the reference,
+OpenCV's HOGDescriptor; ratios on the same frames), fastdet's stage split,
+fastdet.hog against scikit-image, the physical floor, and with ``--scaling``
+the scaling study (``--plot`` draws it).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+
+def add_bench_parser(subparsers):
+    """Register ``bench`` on the ``fastdet`` command's sub-parsers."""
+    bench = subparsers.add_parser(
+        "bench", help="per-frame latency of fastdet and its peers (markdown tables)",
+        description="Time fastdet, the reference pipeline and OpenCV's HOGDescriptor on the "
+                    "same frames of a video and print markdown tables.")
+    bench.add_argument("--video", help="video to time (default: the shared test video)")
+    bench.add_argument("--frames", type=int, metavar="N",
+                       help="use the first N frames (default: all; 10 for --scaling)")
+    bench.add_argument("--threads", type=int, nargs="+", metavar="T",
+                       help="thread counts to time fastdet with (default: 1 and all cores)")
+    bench.add_argument("--size", metavar="WxH", help="resize frames first, e.g. 1920x1080")
+    bench.add_argument("--repeat", type=int, default=3,
+                       help="timed calls per frame; the median is kept (default 3)")
+    bench.add_argument("--reference-frames", type=int, default=5, metavar="N",
+                       help="frames to time the slow reference on (default 5; 0 skips it)")
+    bench.add_argument("--no-opencv", action="store_true",
+                       help="skip the OpenCV HOGDescriptor peer")
+    bench.add_argument("--hog", action="store_true",
+                       help="time fastdet.hog vs skimage.feature.hog at four frame sizes "
+                            "(default: at the benchmark's frame size only)")
+    bench.add_argument("--scaling", action="store_true",
+                       help="also time fastdet vs frame size, number of scales and threads")
+    bench.add_argument("--rounds", type=int, default=5,
+                       help="--scaling: round-robin passes over all settings; the median "
+                            "pass is kept (default 5)")
+    bench.add_argument("--plot", metavar="PNG", help="draw the scaling study (implies --scaling)")
+    bench.add_argument("--model", metavar="M", help="model file (default: bundled)")
+    bench.add_argument("--config", metavar="C", help="TOML config")
+    bench.set_defaults(handler=cmd_bench)
+    return bench
+
+
+def parse_size(text):
+    """``"1280x720"`` -> ``(1280, 720)``."""
+    from ..errors import InputError
+
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise InputError(f"--size must look like 1280x720, got {text!r}") from None
+    if width < 1 or height < 1:
+        raise InputError(f"--size must be positive, got {text!r}")
+    return width, height
+
+
+def _machine_line():
+    cores = os.cpu_count() or 1
+    try:
+        load = " / ".join(f"{v:.2f}" for v in os.getloadavg())
+    except OSError:  # pragma: no cover - not on Linux
+        load = "n/a"
+    return f"{cores} cores, load average {load} (1/5/15 min) at start"
+
+
+def cmd_bench(args):
+    """Run the benchmark and print markdown tables; returns the exit code."""
+    import numba
+
+    from ..bench.floor import floor_estimate, format_floor
+    from ..bench.hog_compare import format_hog, hog_vs_skimage
+    from ..bench.scaling import SIZES, format_scaling, scaling_study
+    from ..bench.scaling_plot import plot_scaling
+    from ..bench.latency import format_stages, format_table, run_benchmark
+    from ..bench.timing import read_frames
+    from ..detector.config import load_config
+    from ..detector.model import load_model
+    from ..errors import InputError
+    from ..files.shared_data import data_dir
+
+    log = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
+    for name in ("frames", "repeat", "rounds"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise InputError(f"--{name} must be at least 1, got {value}")
+    scaling = args.scaling or bool(args.plot)
+    video = args.video or data_dir() / "test_video.mp4"
+    size = parse_size(args.size) if args.size else None
+    threads = args.threads or sorted({1, numba.config.NUMBA_NUM_THREADS})
+    model = load_model(args.model)
+    config = load_config(args.config)
+    print(f"machine: {_machine_line()}")
+    frames = read_frames(video, args.frames, size)
+    frame_size = (frames[0].shape[1], frames[0].shape[0])
+    print(f"frames: {len(frames)} of {video} at {frame_size[0]}x{frame_size[1]}; "
+          f"model: {args.model or 'bundled default'}")
+
+    run = run_benchmark(frames, threads=threads, repeat=args.repeat,
+                        reference_frames=args.reference_frames, opencv=not args.no_opencv,
+                        model=model, config=config, log=log)
+    try:
+        # Only known once a parallel kernel has run; it decides how threads behave under load.
+        print(f"numba threading layer: {numba.threading_layer()}")
+    except ValueError:
+        pass
+    print("\n## Latency per frame\n")
+    print(format_table(run))
+    if run.reference is not None:
+        print(f"\nReference timed on frames {run.reference.frame_indices}; its ratios use "
+              "every pipeline's times on those frames. OpenCV ratios use all frames.")
+    if run.opencv:
+        info = run.opencv["detector"]
+        trained = "cached" if info["cached"] else f"trained in {info['train_seconds']} s"
+        print(f"OpenCV {run.opencv['opencv_version']} (own environment): grey HOG, 1764 "
+              f"features per window, linear SVM on {info['crops']} crops ({trained}); "
+              f"fastdet scores {model.layout.length} features per window.")
+    for note in run.notes:
+        print(f"note: {note}")
+    print("\n## fastdet stage split\n")
+    print(format_stages(run.results))
+
+    print("\n## fastdet.hog vs skimage.feature.hog\n")
+    hog_sizes = SIZES if args.hog else (frame_size,)
+    print(format_hog(hog_vs_skimage(frames[0], hog_sizes, log=log)))
+
+    single = run.get("fastdet 1 thread")
+    estimate = floor_estimate(run.plans, model, single.median_ms if single else None)
+    print(f"\n## Physical floor ({frame_size[0]}x{frame_size[1]}, one core)\n")
+    print(format_floor(estimate))
+
+    if scaling:
+        study_frames = frames[:args.frames or 10]
+        points = scaling_study(study_frames, model=model, config=config,
+                               threads=sorted({1, *threads}), rounds=args.rounds, log=log)
+        print(f"\n## Scaling ({len(study_frames)} frames; median over {args.rounds} passes of "
+              "the median ms per frame)\n")
+        print(format_scaling(points))
+        if args.plot:
+            print(f"\nplot written to {plot_scaling(points, args.plot)}")
+    return 0

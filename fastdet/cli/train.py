@@ -1,0 +1,104 @@
+"""``fastdet train DATA_DIR``: train a model, or compare colour spaces and feature sets."""
+
+from __future__ import annotations
+
+from ..detector.features import COLOR_CODES, FeatureOptions
+from ..errors import InputError
+from ..kernels.blocks import NORM_CODES
+from .common import log_to_stderr
+
+#: LinearSVC regularisation when neither --C nor --cv is given.
+DEFAULT_C = 1e-3
+#: Values of C that --cv searches.
+DEFAULT_C_GRID = (1e-4, 3e-4, 1e-3, 3e-3)
+
+
+def add_train_parser(subparsers):
+    """Register ``train`` on the ``fastdet`` command's sub-parsers."""
+    defaults = FeatureOptions()
+    train = subparsers.add_parser("train",
+                                  help="train a model on vehicles/ and non-vehicles/ crops")
+    train.add_argument("data_dir", metavar="DATA_DIR")
+    train.add_argument("--out", metavar="MODEL.npz", help="where to write the model")
+    train.add_argument("--report", metavar="PNG", help="also draw the training report")
+    train.add_argument("--compare", action="store_true",
+                       help="train every colour space x feature set and print a table")
+    train.add_argument("--plot", metavar="PNG", help="with --compare: bar chart of the table")
+    train.add_argument("--color-space", default=defaults.color_space, choices=sorted(COLOR_CODES))
+    train.add_argument("--hog-channel", default=str(defaults.hog_channel),
+                       choices=["all", "gray", "0", "1", "2"])
+    train.add_argument("--orientations", type=int, default=defaults.orientations)
+    train.add_argument("--pixels-per-cell", type=int, default=defaults.pixels_per_cell)
+    train.add_argument("--cells-per-block", type=int, default=defaults.cells_per_block)
+    train.add_argument("--block-norm", default=defaults.block_norm, choices=sorted(NORM_CODES))
+    train.add_argument("--spatial-size", type=int, default=defaults.spatial_size,
+                       help="0 disables spatial features")
+    train.add_argument("--hist-bins", type=int, default=defaults.hist_bins,
+                       help="0 disables colour histograms")
+    train.add_argument("--no-hog", action="store_true", help="disable HOG features")
+    train.add_argument("--C", type=float, nargs="+",
+                       help=f"LinearSVC regularisation; several values (or --cv) are "
+                            f"cross-validated on the leak-free folds (default {DEFAULT_C:g})")
+    train.add_argument("--cv", action="store_true",
+                       help=f"choose C from {list(DEFAULT_C_GRID)} by leak-free cross-validation")
+    train.add_argument("--no-flip", action="store_true", help="no horizontal-flip augmentation")
+    train.add_argument("--no-jitter", action="store_true",
+                       help="no jittered (scaled, shifted) copy of each training crop")
+    train.add_argument("--folds", type=int, default=5, help="leak-free split: contiguous folds")
+    train.add_argument("--extra-negatives", nargs="+", metavar="DIR",
+                       help="more folders of non-vehicle crops")
+    train.set_defaults(handler=cmd_train)
+    return train
+
+
+def cmd_train(args):
+    """Train and save a model (or run the ``--compare`` study)."""
+    from ..training.train import train
+
+    if args.compare:
+        return _train_compare(args)
+    channel = args.hog_channel
+    options = FeatureOptions(
+        color_space=args.color_space,
+        hog_channel=int(channel) if channel.isdigit() else channel,
+        orientations=args.orientations, pixels_per_cell=args.pixels_per_cell,
+        cells_per_block=args.cells_per_block, block_norm=args.block_norm,
+        spatial_size=args.spatial_size, hist_bins=args.hist_bins, use_hog=not args.no_hog)
+    if args.out is None:
+        raise InputError("fastdet train needs --out MODEL.npz (or --compare)")
+    if args.C:
+        C = args.C[0] if len(args.C) == 1 and not args.cv else tuple(args.C)
+    else:
+        C = DEFAULT_C_GRID if args.cv else DEFAULT_C
+    model, (test_scores, test_labels) = train(
+        args.data_dir, options=options, C=C, flip=not args.no_flip, jitter=not args.no_jitter,
+        n_folds=args.folds,
+        extra_negatives=args.extra_negatives or (), return_test_scores=True,
+        log=log_to_stderr)
+    model.save(args.out)
+    if args.report:
+        from ..viz.training_figures import training_report_figure
+        training_report_figure(model.report, test_scores, test_labels, args.report)
+        print(f"training report written to {args.report}")
+    report = model.report
+    print(f"feature length {report['feature_length']}  crops {report['crops']}  "
+          f"train time {report['total_seconds']:.1f} s")
+    print(f"accuracy: random split {report['random_split']['accuracy']:.4f}  "
+          f"leak-free split {report['leak_free_split']['accuracy']:.4f}")
+    print(f"model written to {args.out}")
+    return 0
+
+
+def _train_compare(args):
+    from ..training.study import compare, format_markdown
+
+    base = FeatureOptions(orientations=args.orientations, pixels_per_cell=args.pixels_per_cell,
+                          cells_per_block=args.cells_per_block, block_norm=args.block_norm,
+                          spatial_size=args.spatial_size or 32, hist_bins=args.hist_bins or 32)
+    C = args.C[0] if args.C else DEFAULT_C
+    rows = compare(args.data_dir, base, C=C, flip=not args.no_flip, log=log_to_stderr)
+    print(format_markdown(rows))
+    if args.plot:
+        from ..viz.training_figures import study_figure
+        print(f"plot written to {study_figure(rows, args.plot)}")
+    return 0

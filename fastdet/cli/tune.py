@@ -1,0 +1,38 @@
+"""``fastdet tune SOURCE... --annotations A.json``: thresholds on annotated frames."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def add_tune_parser(subparsers):
+    """Register ``tune`` on the ``fastdet`` command's sub-parsers."""
+    tune = subparsers.add_parser("tune", help="choose detection thresholds on annotated frames")
+    tune.add_argument("sources", nargs="+", metavar="SOURCE", help="videos and/or images")
+    tune.add_argument("--annotations", required=True, metavar="A.json")
+    tune.add_argument("--out", metavar="CONFIG.toml", help="write the best thresholds as TOML")
+    tune.add_argument("--top", type=int, default=10, help="rows of the table to print")
+    tune.add_argument("--model", metavar="M", help="model file (default: bundled)")
+    tune.add_argument("--config", metavar="C", help="TOML config with the scales and box filters")
+    tune.set_defaults(handler=cmd_tune)
+    return tune
+
+
+def cmd_tune(args):
+    """Print the tuning table; write the best setting as TOML with ``--out``."""
+    from ..detector.config import load_config
+    from ..detector.model import load_model
+    from ..evaluation.annotations import load_annotations
+    from ..files.atomic import atomic_path
+    from ..training.tune import as_toml, format_results, tune
+
+    annotations = load_annotations(args.annotations)
+    results = tune(load_model(args.model), args.sources, annotations, load_config(args.config),
+                   log=lambda line: print(line, file=sys.stderr))
+    print(format_results(results, top=args.top))
+    if args.out:
+        with atomic_path(args.out) as tmp:
+            Path(tmp).write_text(as_toml(results[0]))
+        print(f"best thresholds written to {args.out}")
+    return 0

@@ -1,0 +1,175 @@
+"""Heat to boxes: hits -> heat map -> labelled blobs -> split, shaped, filtered boxes.
+
+Heat is piecewise constant between window edges, so the kernels sum it on
+the grid of cells the window edges cut, and threshold and label it on the
+runs of identical rows and columns (:mod:`fastdet.kernels.heat`,
+:mod:`fastdet.kernels.label`).  Python here only keeps the settings and
+splits the few blobs that hold two car-sized peaks.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..kernels.heat import box_heat_region
+from ..kernels.label import (
+    component_boxes,
+    heat_blobs,
+    label_components,
+    split_component,
+    split_levels,
+)
+from .detections import Detections
+
+#: Sub-sampling of the cheap first pass that decides whether a heat blob splits.
+_SPLIT_PROBE = 4
+#: Fractions of the way from the heat threshold to a blob's peak at which it is split.
+_SPLIT_LEVELS = np.linspace(0.2, 0.8, 5)
+
+
+class BoxFinder:
+    """The ``[heat]`` and ``[boxes]`` steps of a :class:`~fastdet.detector.config.DetectorConfig`.
+
+    Parameters
+    ----------
+    config : DetectorConfig
+    """
+
+    def __init__(self, config):
+        self.config = config
+        self._heat_blob_params = None
+
+    def heat_weights(self, hits, plans):
+        """Heat each hit adds, per ``heat.weighting`` (``plans``: the frame's scale plans)."""
+        weighting = self.config.heat.weighting
+        if weighting == "count":
+            return np.ones(len(hits.scores), dtype=np.float32)
+        if weighting == "margin":
+            return (hits.scores - self.config.search.decision_threshold).astype(np.float32)
+        per_scale = np.array([plan.heat_weight for plan in plans], dtype=np.float32)
+        return per_scale[hits.scale_index] if len(hits.scores) else np.zeros(0, np.float32)
+
+    def heat_region(self, hits, frame_size, plans):
+        """Heat of the hits over their bounding region.
+
+        Returns
+        -------
+        heat : ndarray of float32, shape (y1 - y0, x1 - x0)
+        origin : tuple of int
+            ``(x0, y0)`` of the region in the frame.
+        """
+        width, height = frame_size
+        if len(hits.scores) == 0:
+            return np.zeros((0, 0), np.float32), (0, 0)
+        heat, x0, y0 = box_heat_region(hits.boxes, self.heat_weights(hits, plans),
+                                       width, height)
+        return heat, (x0, y0)
+
+    def heat_components(self, heat, origin, frame_size=None):
+        """Boxes and peak heat of each blob (refined and split per ``[heat]``).
+
+        ``heat`` is float32 or float64 (other dtypes are taken as float64).
+        """
+        if heat.size == 0:
+            return np.zeros((0, 4), np.int32), np.zeros(0, np.float32)
+        # The kernel's settings, kept while the config and frame size stay:
+        # Python work here costs more than the kernel's per-blob work.
+        params = self._heat_blob_params
+        if params is None or params[0] is not self.config or params[1] != frame_size:
+            cfg = self.config.heat
+            min_size = -1
+            if cfg.split:
+                scale = 1.0
+                if frame_size is not None:
+                    ref_w, ref_h = self.config.search.reference_size
+                    scale = math.sqrt(frame_size[0] / ref_w * frame_size[1] / ref_h)
+                min_size = int(round(cfg.split_min_size * scale))
+            params = self._heat_blob_params = (
+                self.config, frame_size, min_size,
+                (float(cfg.threshold), cfg.connectivity == 8, bool(cfg.peak_fraction > 0),
+                 np.float32(cfg.peak_fraction), min_size, _SPLIT_PROBE, _SPLIT_LEVELS))
+        if heat.dtype != np.float32 and heat.dtype != np.float64:
+            heat = heat.astype(np.float64)
+        # One kernel thresholds and labels the heat on its grid of constant
+        # cells, measures the blobs and probes which of them split.
+        boxes, peaks, probed, n_probed = heat_blobs(heat, origin[0], origin[1], *params[3])
+        if n_probed:
+            boxes, peaks = self._split_blobs(heat, origin, boxes, peaks, probed, params[2])
+        return boxes, peaks
+
+    def _split_blobs(self, heat, origin, boxes, peaks, probed, min_size):
+        """Replace blobs with two car-sized peaks by one box per peak.
+
+        Heat is piecewise constant over window steps of 8+ pixels, so a
+        quarter-resolution probe (run by ``heat_blobs``) finds out cheaply
+        whether a blob splits at all; the ``probed`` ones are split here at
+        full resolution.
+        """
+        cfg = self.config.heat
+        labels, count = label_components(heat > cfg.threshold, cfg.connectivity)
+        whole = component_boxes(labels, count)
+        shift = np.array([origin[0], origin[1], origin[0], origin[1]], dtype=np.int32)
+        out_boxes, out_peaks = [], []
+        for k in range(len(peaks)):
+            parts = boxes[:0]
+            if probed[k]:
+                x1, y1, x2, y2 = whole[k]
+                region = heat[y1:y2, x1:x2]
+                mask = np.ascontiguousarray(labels[y1:y2, x1:x2] == k + 1)
+                # The same levels the kernel's probe used (one definition).
+                levels = split_levels(np.float32(peaks[k]), float(cfg.threshold), _SPLIT_LEVELS)
+                parts = split_component(np.ascontiguousarray(region), mask, levels, min_size,
+                                        min_size, cfg.connectivity)
+                # A seed that won no pixel yields an empty box; it is no car.
+                parts = parts[(parts[:, 2] > parts[:, 0]) & (parts[:, 3] > parts[:, 1])]
+            if len(parts) < 2:
+                out_boxes.append(boxes[k:k + 1])
+                out_peaks.append(peaks[k:k + 1])
+                continue
+            out_peaks.append(np.array([region[py1:py2, px1:px2][mask[py1:py2, px1:px2]].max()
+                                       for px1, py1, px2, py2 in parts], dtype=np.float32))
+            out_boxes.append(parts + np.array([x1, y1, x1, y1], dtype=np.int32) + shift)
+        return np.concatenate(out_boxes), np.concatenate(out_peaks)
+
+    def finish_boxes(self, boxes, peaks, frame_size):
+        """Shape-correct and filter blob boxes into :class:`Detections`."""
+        boxes = self.reshape_boxes(boxes, frame_size)
+        keep = self.box_filter(boxes, frame_size)
+        return Detections(boxes[keep], peaks[keep])
+
+    def reshape_boxes(self, boxes, frame_size):
+        """Apply the ``[boxes]`` shape correction about each box centre, clipped to the frame."""
+        cfg = self.config.boxes
+        if cfg.width_scale == 1 and cfg.height_scale == 1 and cfg.center_dy == 0:
+            return boxes
+        xyxy = boxes.astype(np.float64)
+        cx = (xyxy[:, 0] + xyxy[:, 2]) / 2
+        cy = (xyxy[:, 1] + xyxy[:, 3]) / 2
+        half_w = (xyxy[:, 2] - xyxy[:, 0]) * cfg.width_scale / 2
+        height = xyxy[:, 3] - xyxy[:, 1]
+        half_h = height * cfg.height_scale / 2
+        cy = cy + cfg.center_dy * height
+        out = np.stack([cx - half_w, cy - half_h, cx + half_w, cy + half_h], axis=1)
+        out = np.round(out)
+        width, height = frame_size
+        out[:, 0] = np.clip(out[:, 0], 0, width - 1)
+        out[:, 1] = np.clip(out[:, 1], 0, height - 1)
+        # A box keeps at least one pixel after rounding and clipping.
+        out[:, 2] = np.clip(out[:, 2], out[:, 0] + 1, width)
+        out[:, 3] = np.clip(out[:, 3], out[:, 1] + 1, height)
+        return out.astype(np.int32)
+
+    def box_filter(self, boxes, frame_size):
+        """Boolean mask of the boxes that pass the ``[boxes]`` sanity filters."""
+        cfg = self.config.boxes
+        ref_w, ref_h = self.config.search.reference_size
+        kx, ky = frame_size[0] / ref_w, frame_size[1] / ref_h
+        k = math.sqrt(kx * ky)
+        width = boxes[:, 2] - boxes[:, 0]
+        height = boxes[:, 3] - boxes[:, 1]
+        aspect = width / np.maximum(height, 1)
+        return ((width >= cfg.min_size * k) & (height >= cfg.min_size * k)
+                & (aspect >= cfg.min_aspect) & (aspect <= cfg.max_aspect)
+                & (boxes[:, 3] > cfg.horizon_y * ky))

@@ -1,0 +1,83 @@
+"""Box geometry shared by tracking, evaluation and mining: areas, intersections, IoU, cover.
+
+Boxes are ``[x1, y1, x2, y2]`` pixels with exclusive ``x2``/``y2`` (the
+convention of :class:`~fastdet.detector.detections.Detections` and of the
+annotation files), so a box's area is ``(x2 - x1) * (y2 - y1)``.  Every
+function takes array-likes of shape ``(N, 4)`` and works in float64.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def iou_matrix(boxes_a, boxes_b):
+    """Intersection over union of every pair of boxes.
+
+    Parameters
+    ----------
+    boxes_a : array_like, shape (N, 4)
+        ``[x1, y1, x2, y2]`` boxes, ``x2``/``y2`` exclusive.
+    boxes_b : array_like, shape (M, 4)
+        Same convention.
+
+    Returns
+    -------
+    ndarray of float64, shape (N, M)
+        ``iou[i, j]`` of ``boxes_a[i]`` and ``boxes_b[j]``; 0 for pairs that
+        do not overlap or whose union is empty (degenerate boxes).
+    """
+    boxes_a = as_box_array(boxes_a, "boxes_a")
+    boxes_b = as_box_array(boxes_b, "boxes_b")
+    area_a = box_areas(boxes_a)
+    area_b = box_areas(boxes_b)
+    intersection = intersection_matrix(boxes_a, boxes_b)
+    union = area_a[:, None] + area_b[None, :] - intersection
+    iou = np.zeros_like(intersection)
+    np.divide(intersection, union, out=iou, where=union > 0)
+    return iou
+
+
+def cover_matrix(boxes_a, boxes_b):
+    """Share of each box of ``boxes_a`` lying inside each box of ``boxes_b``.
+
+    Returns
+    -------
+    ndarray of float64, shape (N, M)
+        ``intersection(a_i, b_j) / area(a_i)``; 0 where ``a_i`` has no area.
+    """
+    boxes_a = as_box_array(boxes_a, "boxes_a")
+    intersection = intersection_matrix(boxes_a, boxes_b)
+    area = box_areas(boxes_a)[:, None]
+    cover = np.zeros_like(intersection)
+    np.divide(intersection, area, out=cover, where=area > 0)
+    return cover
+
+
+def as_box_array(boxes, name):
+    boxes = np.asarray(boxes, dtype=np.float64)
+    if boxes.size == 0:
+        return boxes.reshape(0, 4)
+    if boxes.ndim != 2 or boxes.shape[1] != 4:
+        raise InputError(f"{name} must have shape (N, 4), got {boxes.shape}")
+    return boxes
+
+
+def box_areas(boxes):
+    # Inverted boxes get zero area rather than a negative one.
+    return (np.clip(boxes[:, 2] - boxes[:, 0], 0, None)
+            * np.clip(boxes[:, 3] - boxes[:, 1], 0, None))
+
+
+def intersection_matrix(boxes_a, boxes_b):
+    """Intersection area of every pair of boxes (float64, shape (N, M))."""
+    boxes_a = as_box_array(boxes_a, "boxes_a")
+    boxes_b = as_box_array(boxes_b, "boxes_b")
+    # Broadcast (N, 1) against (1, M): overlap extents of every pair.
+    overlap_w = (np.minimum(boxes_a[:, None, 2], boxes_b[None, :, 2])
+                 - np.maximum(boxes_a[:, None, 0], boxes_b[None, :, 0]))
+    overlap_h = (np.minimum(boxes_a[:, None, 3], boxes_b[None, :, 3])
+                 - np.maximum(boxes_a[:, None, 1], boxes_b[None, :, 1]))
+    return np.clip(overlap_w, 0, None) * np.clip(overlap_h, 0, None)

@@ -1,0 +1,155 @@
+"""``fastdet.hog``: a drop-in for ``skimage.feature.hog`` on fastdet's kernels.
+
+The HOG that fastdet's detector computes is scikit-image's HOG (same gradients,
+same hard orientation binning, same cell pooling, same four block norms; the
+kernel tests pin it), so the kernels can serve scikit-image's public function
+directly: same arguments (the subset below), same output shape, order and
+dtype, values equal to within float32 rounding (< 1e-5).
+
+uint8 images take the kernels' exact integer-gradient paths (vector code
+for 9 bins and 8x8 cells, a lookup table otherwise); other images take the
+float path (see :func:`fastdet.kernels.hog.cell_histograms`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..kernels.blocks import NORM_CODES, normalize_blocks
+from ..kernels.hog import cell_histograms
+
+#: scikit-image's messages, word for word, so code that matches on them works.
+_TWO_SPATIAL_DIMS = ("Only images with two spatial dimensions are supported. If using with "
+                     "color/multichannel images, specify `channel_axis`.")
+_INVALID_NORM = "Selected block normalization method is invalid."
+_ONE_CHANNEL_AXIS = "only a single channel axis is currently supported"
+_COMPLEX = "complex valued input is not supported"
+
+
+def _pair(value, name):
+    """``value`` as a pair of positive ints (scikit-image takes any 2-sequence)."""
+    try:
+        first, second = (int(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a pair of positive integers, got {value!r}") from None
+    if first < 1 or second < 1:
+        raise ValueError(f"{name} must be a pair of positive integers, got {value!r}")
+    return first, second
+
+
+def _output_dtype(dtype):
+    """The float dtype scikit-image computes and returns for an input dtype.
+
+    float16 and float32 give float32; every other dtype (integers, bool,
+    float64) gives float64, as in ``skimage._shared.utils._supported_float_type``.
+    """
+    return np.dtype(np.float32) if dtype in (np.float16, np.float32) else np.dtype(np.float64)
+
+
+def _kernel_input(image, multichannel):
+    """The C-contiguous (H, W, C) array the cell kernel reads.
+
+    uint8 stays uint8 (exact integer-gradient paths); float32 stays float32.
+    bool becomes uint8 (0 and 1 give the same gradients as scikit-image's
+    0.0 and 1.0).  float16 is widened to float32 as scikit-image does.
+    Other integer types are passed as they are: the kernel converts them to
+    float32, which holds their gradients exactly up to 2**24, and compares
+    merged-channel magnitudes in float64 as scikit-image does for integers.
+    """
+    if image.dtype == np.bool_:
+        image = image.astype(np.uint8)
+    elif image.dtype == np.float16:
+        image = image.astype(np.float32)
+    if not multichannel:
+        image = image[:, :, None]
+    return np.ascontiguousarray(image)
+
+
+def hog(image, orientations=9, pixels_per_cell=(8, 8), cells_per_block=(2, 2),
+        block_norm="L2-Hys", channel_axis=None, feature_vector=True):
+    """Histogram of Oriented Gradients, as ``skimage.feature.hog`` computes it.
+
+    Parameters
+    ----------
+    image : ndarray, shape (M, N) or (M, N, C) with ``channel_axis``
+        Input image.  uint8 images use the exact integer-gradient paths.
+    orientations : int
+        Number of unsigned orientation bins over 0-180 degrees.
+    pixels_per_cell : 2-tuple of int
+        ``(rows, cols)`` of a cell.
+    cells_per_block : 2-tuple of int
+        ``(rows, cols)`` of a block, in cells.  Note that the default here,
+        ``(2, 2)`` (the block fastdet's models use), differs from
+        scikit-image's ``(3, 3)``: pass it explicitly when porting code.
+    block_norm : {'L1', 'L1-sqrt', 'L2', 'L2-Hys'}
+        Block normalisation, as in scikit-image.
+    channel_axis : int or None
+        The axis holding colour channels.  ``None`` means a grey (M, N)
+        image.  With channels, each pixel uses the gradient of the channel
+        with the largest magnitude (scikit-image's multichannel rule).
+    feature_vector : bool
+        Return ``ravel()`` of the block array.
+
+    Returns
+    -------
+    ndarray
+        Shape ``(n_blocks_row, n_blocks_col, b_row, b_col, orientations)``
+        or its ravel; float32 for float16/float32 images, float64 otherwise
+        (scikit-image's dtypes).
+
+    Raises
+    ------
+    ValueError
+        With scikit-image's messages: not two spatial dimensions, an
+        unknown block norm, more than one channel axis, complex input, or an
+        image smaller than one block.
+
+    Notes
+    -----
+    ``visualize`` and ``transform_sqrt`` are not supported (pass
+    ``np.sqrt(image)`` for the latter).  Values match scikit-image to float32
+    rounding; float64 images are computed in float32 (the kernels' float
+    path), so a gradient lying within float32 rounding of an orientation-bin
+    boundary may fall in the neighbouring bin.
+
+    Examples
+    --------
+    >>> import numpy as np, fastdet
+    >>> image = np.zeros((64, 64), np.uint8)
+    >>> fastdet.hog(image, feature_vector=False).shape
+    (7, 7, 2, 2, 9)
+    """
+    image = np.atleast_2d(np.asarray(image))
+    if image.dtype.kind == "c":
+        raise ValueError(_COMPLEX)
+    multichannel = channel_axis is not None
+    if multichannel:
+        axes = (channel_axis,) if np.isscalar(channel_axis) else tuple(channel_axis)
+        if len(axes) > 1:
+            raise ValueError(_ONE_CHANNEL_AXIS)
+        image = np.moveaxis(image, axes[0], -1)
+    if (image.ndim - 1 if multichannel else image.ndim) != 2:
+        raise ValueError(_TWO_SPATIAL_DIMS)
+    if block_norm not in NORM_CODES:
+        raise ValueError(_INVALID_NORM)
+    cell_rows, cell_cols = _pair(pixels_per_cell, "pixels_per_cell")
+    block_rows, block_cols = _pair(cells_per_block, "cells_per_block")
+    orientations = int(orientations)
+    if orientations < 1:
+        raise ValueError(f"orientations must be a positive integer, got {orientations}")
+    n_blocks_row = image.shape[0] // cell_rows - block_rows + 1
+    n_blocks_col = image.shape[1] // cell_cols - block_cols + 1
+    if n_blocks_row <= 0 or n_blocks_col <= 0:
+        raise ValueError("The input image is too small given the values of pixels_per_cell and "
+                         "cells_per_block. It should have at least: "
+                         f"{block_rows * cell_rows} rows and {block_cols * cell_cols} cols.")
+
+    out_dtype = _output_dtype(image.dtype)
+    cells = cell_histograms(_kernel_input(image, multichannel), (cell_rows, cell_cols),
+                            orientations, merge_channels=multichannel)
+    blocks = normalize_blocks(cells, (block_rows, block_cols), block_norm)
+    # One histogram channel (grey, or merged colour): the kernel's block order
+    # (channel, cell_y, cell_x, bin) is scikit-image's (cell_y, cell_x, bin).
+    blocks = blocks.reshape(n_blocks_row, n_blocks_col, block_rows, block_cols, orientations)
+    blocks = blocks.astype(out_dtype, copy=False)
+    return blocks.ravel() if feature_vector else blocks

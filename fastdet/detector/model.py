@@ -1,0 +1,189 @@
+"""Linear vehicle/non-vehicle models: plain data in a ``.npz``, validated on load.
+
+A model file holds two arrays and nothing that needs pickle:
+
+* ``weights``: float32 (F,), the linear SVM weights already divided by the
+  training scaler's standard deviations, in :class:`~fastdet.detector.features.FeatureLayout`
+  order;
+* ``metadata``: the UTF-8 bytes of a JSON object with the format name and
+  version, the feature options, the bias (with the scaler's mean folded in),
+  the feature length, SHA-256 digests of the weights and of the bias and
+  feature options, and the training report.
+
+The decision value of a feature vector ``x`` is ``bias + weights @ x``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import zipfile
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ModelError
+from ..files.atomic import atomic_path
+from .features import WINDOW, FeatureLayout, FeatureOptions
+
+FORMAT_NAME = "fastdet-model"
+FORMAT_VERSION = 1
+DEFAULT_MODEL_NAME = "default_model.npz"
+
+
+@dataclass
+class Model:
+    """A linear classifier over fastdet features.
+
+    Parameters
+    ----------
+    weights : ndarray of float32, shape (F,)
+        Weights in feature-vector order, scaler folded in.
+    bias : float
+        Intercept, scaler folded in.
+    options : FeatureOptions
+        How features are computed; fixes ``F``.
+    report : dict
+        Training report (accuracies, sizes, times); informational.
+    """
+
+    weights: np.ndarray
+    bias: float
+    options: FeatureOptions
+    report: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.weights = np.ascontiguousarray(self.weights, dtype=np.float32)
+        self.bias = float(self.bias)
+        expected = self.layout.length
+        if self.weights.shape != (expected,):
+            raise ModelError(f"model weights have shape {self.weights.shape}, but its feature "
+                             f"options need ({expected},)")
+        if not (np.all(np.isfinite(self.weights)) and np.isfinite(self.bias)):
+            raise ModelError("model weights or bias are not finite")
+
+    @property
+    def layout(self):
+        """The :class:`FeatureLayout` of this model's features."""
+        return FeatureLayout(self.options)
+
+    @property
+    def window(self):
+        """Side of the square window the model scores, in pixels."""
+        return WINDOW
+
+    def decision_function(self, features):
+        """SVM margins of feature vectors.
+
+        Parameters
+        ----------
+        features : ndarray, shape (N, F) or (F,)
+
+        Returns
+        -------
+        ndarray of float64, shape (N,) or ()
+        """
+        return np.asarray(features, dtype=np.float64) @ self.weights.astype(np.float64) + self.bias
+
+    def split_weights(self):
+        """Weights per feature group: ``(hog, spatial, hist)`` arrays."""
+        return self.layout.split(self.weights)
+
+    def save(self, path):
+        """Write the model atomically to ``path`` (``.npz``)."""
+        metadata = {
+            "format": FORMAT_NAME,
+            "format_version": FORMAT_VERSION,
+            "window": WINDOW,
+            "feature_options": self.options.to_dict(),
+            "feature_length": int(self.weights.size),
+            "bias": self.bias,
+            "weights_sha256": _digest(self.weights),
+            "settings_sha256": _settings_digest(self.bias, self.options.to_dict()),
+            "report": self.report,
+        }
+        blob = np.frombuffer(json.dumps(metadata, sort_keys=True).encode("utf-8"), dtype=np.uint8)
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as handle:
+                np.savez(handle, weights=self.weights, metadata=blob)
+
+
+def _digest(weights):
+    return hashlib.sha256(np.ascontiguousarray(weights, dtype="<f4").tobytes()).hexdigest()
+
+
+def _settings_digest(bias, feature_options):
+    """SHA-256 of what besides the weights decides a model's scores."""
+    text = json.dumps({"bias": float(bias), "feature_options": feature_options}, sort_keys=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def load_model(path=None):
+    """Load and validate a model file; ``None`` loads the bundled default.
+
+    Raises
+    ------
+    ModelError
+        With a one-line reason when the file is missing, not a model, of an
+        unknown version, inconsistent or tampered with.
+    """
+    if path is None:
+        data = resources.files("fastdet").joinpath("data", DEFAULT_MODEL_NAME).read_bytes()
+        return _parse(io.BytesIO(data), "the bundled default model")
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"model file not found: {path}")
+    with open(path, "rb") as handle:
+        return _parse(handle, str(path))
+
+
+def _parse(handle, name):
+    try:
+        with np.load(handle, allow_pickle=False) as archive:
+            members = set(archive.files)
+            if members != {"weights", "metadata"}:
+                raise ModelError(f"{name} is not a fastdet model (arrays: {sorted(members)})")
+            weights = archive["weights"]
+            blob = archive["metadata"]
+        if not (isinstance(weights, np.ndarray) and isinstance(blob, np.ndarray)):
+            raise ModelError(f"{name} is not a fastdet model (its members are not arrays)")
+    except ModelError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+        raise ModelError(f"{name} is not a readable fastdet model: {exc}") from None
+    if blob.dtype != np.uint8 or blob.ndim != 1:
+        raise ModelError(f"{name} has malformed metadata")
+    try:
+        metadata = json.loads(blob.tobytes().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ModelError(f"{name} has unreadable metadata: {exc}") from None
+    if not isinstance(metadata, dict) or metadata.get("format") != FORMAT_NAME:
+        raise ModelError(f"{name} is not a fastdet model")
+    version = metadata.get("format_version")
+    if version != FORMAT_VERSION:
+        raise ModelError(f"{name} has model format version {version!r}; "
+                         f"this fastdet reads version {FORMAT_VERSION}")
+    if metadata.get("window") != WINDOW:
+        raise ModelError(f"{name} was trained on {metadata.get('window')!r}-pixel windows; "
+                         f"fastdet uses {WINDOW}")
+    try:
+        options = FeatureOptions.from_dict(metadata["feature_options"])
+        bias = float(metadata["bias"])
+        length = int(metadata["feature_length"])
+        digest = str(metadata["weights_sha256"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ModelError(f"{name} has invalid metadata: {exc}") from None
+    if weights.dtype != np.float32 or weights.shape != (length,):
+        raise ModelError(f"{name} has weights of {weights.dtype} {weights.shape}, "
+                         f"metadata says float32 ({length},)")
+    if _digest(weights) != digest:
+        raise ModelError(f"{name} failed its checksum: the weights were modified")
+    settings = metadata.get("settings_sha256")
+    if settings is not None and settings != _settings_digest(bias, options.to_dict()):
+        raise ModelError(f"{name} failed its checksum: the bias or feature options were modified")
+    report = metadata.get("report", {})
+    return Model(weights=weights, bias=bias, options=options,
+                 report=report if isinstance(report, dict) else {})

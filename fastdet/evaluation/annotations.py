@@ -1,0 +1,102 @@
+"""Ground truth: annotation files of vehicle boxes, read and validated.
+
+An annotation file is::
+
+    {"images": {"test1.jpg": [{"box": [x1, y1, x2, y2], "label": "car",
+                               "difficult": false}, ...], ...}}
+
+with video frames named ``frame<N>``.  Boxes marked ``difficult`` are
+neither required nor penalised (see :mod:`fastdet.evaluation.matching`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def load_annotations(path):
+    """Read and validate an annotation file.
+
+    Parameters
+    ----------
+    path : str or Path
+        JSON file of the form ``{"images": {name: [object, ...]}}`` where each
+        object has ``"box": [x1, y1, x2, y2]`` (numbers, ``x2 > x1``,
+        ``y2 > y1``) and optionally ``"label"`` (str, default ``"car"``) and
+        ``"difficult"`` (bool, default ``False``).  Other top-level keys
+        (such as ``"format"``, a description) are ignored.
+
+    Returns
+    -------
+    dict of str to list of dict
+        Image name to its objects, each normalised to
+        ``{"box": [float x4], "label": str, "difficult": bool}``.
+
+    Raises
+    ------
+    InputError
+        With a one-line message naming the file and the first problem: the
+        file is missing, is not JSON, or does not have the structure above.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"annotation file not found: {path}")
+    try:
+        with open(path, encoding="utf-8") as handle:
+            data = json.load(handle)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        # JSONDecodeError's message is already one line with position info.
+        raise InputError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict) or not isinstance(data.get("images"), dict):
+        raise InputError(f"{path} must hold a JSON object with an \"images\" object")
+    annotations = {}
+    for image_name, objects in data["images"].items():
+        if not isinstance(objects, list):
+            raise InputError(f"{path}: images[{image_name!r}] must be a list of objects")
+        annotations[image_name] = [_parse_object(obj, f"{path}: images[{image_name!r}][{index}]")
+                                   for index, obj in enumerate(objects)]
+    return annotations
+
+
+def _parse_object(obj, where):
+    if not isinstance(obj, dict):
+        raise InputError(f"{where} must be an object with a \"box\"")
+    box = obj.get("box")
+    # bool is an int subclass; a box of booleans is certainly a mistake.
+    if (not isinstance(box, list) or len(box) != 4
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                       and math.isfinite(v) for v in box)):
+        raise InputError(f"{where}.box must be a list of 4 finite numbers, got {box!r}")
+    if not (box[2] > box[0] and box[3] > box[1]):
+        raise InputError(f"{where}.box must have x2 > x1 and y2 > y1, got {box!r}")
+    label = obj.get("label", "car")
+    if not isinstance(label, str):
+        raise InputError(f"{where}.label must be a string, got {label!r}")
+    difficult = obj.get("difficult", False)
+    if not isinstance(difficult, bool):
+        raise InputError(f"{where}.difficult must be true or false, got {difficult!r}")
+    return {"box": [float(v) for v in box], "label": label, "difficult": difficult}
+
+
+def ground_truth_arrays(objects):
+    """Boxes and difficult flags of one image's annotation objects.
+
+    Parameters
+    ----------
+    objects : list of dict
+        One image's entry of :func:`load_annotations`.
+
+    Returns
+    -------
+    boxes : ndarray of float64, shape (M, 4)
+    difficult : ndarray of bool, shape (M,)
+    """
+    boxes = np.array([obj["box"] for obj in objects], dtype=np.float64).reshape(-1, 4)
+    difficult = np.array([bool(obj.get("difficult", False)) for obj in objects], dtype=bool)
+    return boxes, difficult

@@ -1,0 +1,214 @@
+"""Pooled detection-quality metrics: precision, recall, AP and IoU over a set of images.
+
+Pure numpy, independent of how the detections were produced.
+
+Typical use::
+
+    annotations = load_annotations("test_images/annotations.json")
+    results = {name: (dets.xyxy, dets.score) for name, dets in detections.items()}
+    report = evaluate(results, annotations)
+    print(report.precision, report.recall, report.ap)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from .annotations import ground_truth_arrays
+from .matching import DIFFICULT_COVER, FALSE_POSITIVE, IGNORED, TRUE_POSITIVE, match_image
+
+
+def average_precision(labels, scores, n_positives):
+    """PASCAL-VOC (2010+) all-point interpolated average precision.
+
+    The ranked list is every non-ignored prediction sorted by descending
+    score (stable, so ties keep their given order).  Precision is made
+    monotone by taking, at each rank, the best precision at that or any
+    later rank; AP is the area under that envelope as a step function of
+    recall.
+
+    Parameters
+    ----------
+    labels : array_like of int, shape (N,)
+        ``TRUE_POSITIVE``, ``FALSE_POSITIVE`` or ``IGNORED`` per prediction.
+    scores : array_like of float, shape (N,)
+    n_positives : int
+        Number of non-difficult ground-truth boxes.
+
+    Returns
+    -------
+    float
+        AP in [0, 1]; 0 when ``n_positives`` is 0 (undefined there, and 0
+        never flatters a detector).
+    """
+    labels = np.asarray(labels).reshape(-1)
+    scores = np.asarray(scores, dtype=np.float64).reshape(-1)
+    if n_positives <= 0:
+        return 0.0
+    ranked = labels != IGNORED
+    labels, scores = labels[ranked], scores[ranked]
+    order = np.argsort(-scores, kind="stable")
+    is_tp = labels[order] == TRUE_POSITIVE
+    cumulative_tp = np.cumsum(is_tp)
+    cumulative_fp = np.cumsum(~is_tp)
+    recall = np.concatenate([[0.0], cumulative_tp / n_positives, [1.0]])
+    precision = np.concatenate(
+        [[0.0], cumulative_tp / np.maximum(cumulative_tp + cumulative_fp, 1), [0.0]])
+    # Envelope: right-to-left running maximum.
+    precision = np.maximum.accumulate(precision[::-1])[::-1]
+    steps = np.flatnonzero(recall[1:] != recall[:-1])
+    return float(np.sum((recall[steps + 1] - recall[steps]) * precision[steps + 1]))
+
+
+@dataclass
+class EvalReport:
+    """Detection quality over a set of images.
+
+    Attributes
+    ----------
+    precision : float
+        ``tp / (tp + fp)`` over all non-ignored predictions (no score cut).
+    recall : float
+        ``tp / n_gt``.
+    ap : float
+        All-point interpolated average precision of the predictions of all
+        images pooled and ranked by score (:func:`average_precision`).
+    mean_iou : float
+        Mean IoU of the true-positive matches.
+    tp, fp, fn : int
+        True positives, false positives, missed non-difficult boxes.
+    n_gt : int
+        Non-difficult ground-truth boxes.
+    ignored : int
+        Predictions matched to difficult boxes (counted nowhere else).
+    iou_threshold : float
+    difficult_cover : float or None
+        The coverage rule used for difficult boxes (``None``: plain VOC).
+    per_image : dict of str to ImageMatch
+
+    Notes
+    -----
+    Ratios without a denominator are defined so that the report stays finite
+    (and JSON-friendly):
+
+    * no predictions: ``precision = 1.0`` (no wrong claims were made);
+    * no non-difficult ground truth: ``recall = 1.0`` (nothing was missed)
+      and ``ap = 0.0`` (AP is undefined; 0 never flatters);
+    * no true positives: ``mean_iou = 0.0``.
+    """
+
+    precision: float
+    recall: float
+    ap: float
+    mean_iou: float
+    tp: int
+    fp: int
+    fn: int
+    n_gt: int
+    ignored: int
+    iou_threshold: float
+    difficult_cover: float | None = DIFFICULT_COVER
+    per_image: dict = field(default_factory=dict, repr=False)
+
+    def to_dict(self, per_image=True):
+        """JSON-ready summary, optionally with per-image counts.
+
+        Parameters
+        ----------
+        per_image : bool
+            Include ``{"images": {name: {"tp", "fp", "fn", "ignored"}}}``.
+
+        Returns
+        -------
+        dict
+        """
+        summary = {name: getattr(self, name) for name in
+                   ("precision", "recall", "ap", "mean_iou", "tp", "fp", "fn", "n_gt",
+                    "ignored", "iou_threshold", "difficult_cover")}
+        if per_image:
+            summary["images"] = {name: {"tp": match.tp, "fp": match.fp, "fn": match.fn,
+                                        "ignored": match.ignored}
+                                 for name, match in self.per_image.items()}
+        return summary
+
+
+def evaluate(results, annotations, iou_threshold=0.5, difficult_cover=DIFFICULT_COVER):
+    """Match predictions to ground truth on every image and pool the metrics.
+
+    Parameters
+    ----------
+    results : dict
+        Image name to ``(boxes, scores)``: boxes ``(N, 4)`` ``[x1, y1, x2,
+        y2]`` (``x2``/``y2`` exclusive) and scores ``(N,)``.  A
+        :class:`~fastdet.detector.detections.Detections` is accepted in place of the
+        tuple.  Annotated images missing from ``results`` count as having no
+        predictions.
+    annotations : dict
+        Image name to annotation objects, as returned by
+        :func:`load_annotations`.
+    iou_threshold : float
+        Minimum IoU (inclusive) for a prediction to match a box.
+    difficult_cover : float or None
+        Coverage rule for difficult boxes (see :func:`match_image`); ``None``
+        for the plain VOC rule.
+
+    Returns
+    -------
+    EvalReport
+        See its Notes for the values used when there are no predictions or
+        no ground truth.
+
+    Raises
+    ------
+    InputError
+        If ``results`` names images that have no annotations (they cannot be
+        scored, and silently dropping them would flatter precision), or if
+        ``difficult_cover`` is not in (0, 1].
+    """
+    if difficult_cover is not None and not 0 < difficult_cover <= 1:
+        # At 0 every false positive beside a difficult box would be ignored.
+        raise InputError(f"difficult_cover must be in (0, 1] or None, got {difficult_cover!r}")
+    unannotated = sorted(set(results) - set(annotations))
+    if unannotated:
+        shown = ", ".join(unannotated[:5]) + (", ..." if len(unannotated) > 5 else "")
+        raise InputError(f"{len(unannotated)} image(s) have results but no annotations: {shown}")
+    per_image = {}
+    for image_name, objects in annotations.items():
+        boxes, scores = _boxes_and_scores(results.get(image_name))
+        gt_boxes, gt_difficult = ground_truth_arrays(objects)
+        per_image[image_name] = match_image(boxes, scores, gt_boxes, gt_difficult, iou_threshold,
+                                            difficult_cover)
+
+    matches = list(per_image.values())
+    labels = np.concatenate([m.labels for m in matches] or [np.zeros(0, np.int8)])
+    scores = np.concatenate([m.scores for m in matches] or [np.zeros(0)])
+    ious = np.concatenate([m.ious for m in matches] or [np.zeros(0)])
+    tp = int(np.count_nonzero(labels == TRUE_POSITIVE))
+    fp = int(np.count_nonzero(labels == FALSE_POSITIVE))
+    n_gt = sum(m.n_positives for m in matches)
+    return EvalReport(
+        precision=tp / (tp + fp) if tp + fp else 1.0,
+        recall=tp / n_gt if n_gt else 1.0,
+        ap=average_precision(labels, scores, n_gt),
+        mean_iou=float(ious[labels == TRUE_POSITIVE].mean()) if tp else 0.0,
+        tp=tp, fp=fp, fn=n_gt - tp, n_gt=n_gt,
+        ignored=int(np.count_nonzero(labels == IGNORED)),
+        iou_threshold=float(iou_threshold),
+        difficult_cover=None if difficult_cover is None else float(difficult_cover),
+        per_image=per_image,
+    )
+
+
+def _boxes_and_scores(result):
+    if result is None:
+        return np.zeros((0, 4)), np.zeros(0)
+    if hasattr(result, "xyxy") and hasattr(result, "score"):
+        return result.xyxy, result.score
+    try:
+        boxes, scores = result
+    except (TypeError, ValueError):
+        raise InputError("each result must be a (boxes, scores) pair or a Detections") from None
+    return boxes, scores

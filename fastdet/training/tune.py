@@ -1,0 +1,198 @@
+"""``fastdet tune``: choose the detection thresholds on annotated frames.
+
+The decision threshold, the heat threshold, the heat weighting and the box
+refinement interact, so they are chosen together by a grid search that
+maximises detection quality on frames annotated for the purpose (the test
+video's frames, never the evaluation images).  Windows are scored once per
+frame at the lowest decision threshold of the grid; every combination then
+only re-filters hits, re-accumulates heat and re-labels, which is cheap.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from dataclasses import dataclass
+
+from ..detector.boxes import BoxFinder
+from ..detector.config import DetectorConfig
+from ..detector.detector import Detector
+from ..detector.scoring import Hits
+from ..evaluation.metrics import evaluate
+from .mine import annotated_frames
+
+#: Box shape corrections searched for the best threshold combinations.
+SHAPE_GRID = {
+    "width_scale": (1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.6),
+    "height_scale": (0.7, 0.75, 0.8, 0.85, 0.9, 0.95, 1.0),
+    "center_dy": (-0.1, -0.05, 0.0, 0.05, 0.1),
+}
+
+#: How many of the best threshold combinations get a shape search.
+SHAPE_CANDIDATES = 5
+
+#: The grid ``fastdet tune`` searches by default.
+DEFAULT_GRID = {
+    "decision_threshold": (-0.5, -0.25, 0.0, 0.25, 0.5, 0.75, 1.0, 1.5),
+    "heat_threshold": (0.0, 1.0, 2.0, 3.0, 4.0),
+    "weighting": ("count", "area", "margin"),
+    "peak_fraction": (0.0, 0.3, 0.5, 0.7),
+}
+
+
+@dataclass
+class TuningResult:
+    """One evaluated combination."""
+
+    decision_threshold: float
+    heat_threshold: float
+    weighting: str
+    peak_fraction: float
+    width_scale: float
+    height_scale: float
+    center_dy: float
+    precision: float
+    recall: float
+    ap: float
+    mean_iou: float
+    stability: int = 0
+
+    @property
+    def f1(self):
+        total = self.precision + self.recall
+        return 0.0 if total == 0 else 2 * self.precision * self.recall / total
+
+    def key(self):
+        """Ranking: F1 first, then stability, box quality and AP."""
+        return (round(self.f1, 4), self.stability, round(self.mean_iou, 4), round(self.ap, 4))
+
+
+def _subset(hits, keep):
+    return Hits(hits.boxes[keep], hits.scores[keep], hits.scale_index[keep], hits.windows_scored)
+
+
+def tune(model, sources, annotations, base_config=None, grid=None, log=None):
+    """Grid-search the thresholds; returns results best first.
+
+    Parameters
+    ----------
+    model : Model
+    sources : iterable of str or Path
+        Videos (annotated as ``frame<N>``) and/or images.
+    annotations : dict
+        From :func:`fastdet.evaluation.annotations.load_annotations`.
+    base_config : DetectorConfig, optional
+        Scales and box filters used for every combination.
+    grid : dict, optional
+        Values per parameter; defaults to :data:`DEFAULT_GRID`.
+    log : callable, optional
+
+    Returns
+    -------
+    list of TuningResult
+    """
+    base = base_config or DetectorConfig()
+    grid = grid or DEFAULT_GRID
+    lowest = min(grid["decision_threshold"])
+    scoring = Detector(model, dataclasses.replace(
+        base, search=dataclasses.replace(base.search, decision_threshold=lowest)))
+    frames = {}
+    for source in sources:
+        for key, frame in annotated_frames(source, annotations):
+            frames[key] = (scoring.hits(frame), (frame.shape[1], frame.shape[0]))
+    truth = {key: annotations[key] for key in frames}
+    results = []
+    for threshold, heat_threshold, weighting, fraction in itertools.product(
+            grid["decision_threshold"], grid["heat_threshold"], grid["weighting"],
+            grid["peak_fraction"]):
+        shape = (base.boxes.width_scale, base.boxes.height_scale, base.boxes.center_dy)
+        results.append(_evaluate(model, base, frames, truth, threshold, heat_threshold, weighting,
+                                 fraction, [shape])[0])
+    _rate_stability(results, grid)
+    results.sort(key=TuningResult.key, reverse=True)
+    shapes = list(itertools.product(SHAPE_GRID["width_scale"], SHAPE_GRID["height_scale"],
+                                    SHAPE_GRID["center_dy"]))
+    for best in results[:SHAPE_CANDIDATES]:
+        shaped = _evaluate(model, base, frames, truth, best.decision_threshold,
+                           best.heat_threshold, best.weighting, best.peak_fraction, shapes)
+        for result in shaped:
+            result.stability = best.stability
+        results.extend(shaped)
+    results.sort(key=TuningResult.key, reverse=True)
+    if log:
+        log(f"{len(results)} combinations on {len(frames)} annotated frames")
+    return results
+
+
+def _rate_stability(results, grid):
+    """Count, for each result, the neighbouring thresholds that score as well.
+
+    A few annotated frames cannot tell apart many settings that are all
+    perfect on them; the one whose decision- and heat-threshold neighbours
+    are perfect too sits in the middle of the good region, furthest from
+    the settings that fail, and is the safest choice on unseen frames.
+    """
+    decision = list(grid["decision_threshold"])
+    heat = list(grid["heat_threshold"])
+    f1 = {(r.decision_threshold, r.heat_threshold, r.weighting, r.peak_fraction): round(r.f1, 4)
+          for r in results}
+    for r in results:
+        i, j = decision.index(r.decision_threshold), heat.index(r.heat_threshold)
+        own = round(r.f1, 4)
+        r.stability = 0
+        for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            if 0 <= i + di < len(decision) and 0 <= j + dj < len(heat):
+                neighbour = (decision[i + di], heat[j + dj], r.weighting, r.peak_fraction)
+                r.stability += f1.get(neighbour, -1) >= own
+
+
+def _evaluate(model, base, frames, truth, threshold, heat_threshold, weighting, fraction,
+              shapes):
+    """Results of one threshold combination under each box shape correction."""
+    config = dataclasses.replace(
+        base,
+        search=dataclasses.replace(base.search, decision_threshold=threshold),
+        heat=dataclasses.replace(base.heat, threshold=heat_threshold, weighting=weighting,
+                                 peak_fraction=fraction))
+    detector = Detector(model, config)
+    blobs = {}
+    for key, (hits, size) in frames.items():
+        kept = _subset(hits, hits.scores > threshold)
+        heat, origin = detector.heat_region(kept, size)
+        blobs[key] = (detector.box_finder.heat_components(heat, origin, size), size)
+    out = []
+    for width_scale, height_scale, center_dy in shapes:
+        shaped = BoxFinder(dataclasses.replace(config, boxes=dataclasses.replace(
+            config.boxes, width_scale=width_scale, height_scale=height_scale,
+            center_dy=center_dy)))
+        predictions = {}
+        for key, ((boxes, peaks), size) in blobs.items():
+            detections = shaped.finish_boxes(boxes, peaks, size)
+            predictions[key] = (detections.xyxy, detections.score)
+        report = evaluate(predictions, truth)
+        out.append(TuningResult(threshold, heat_threshold, weighting, fraction, width_scale,
+                                height_scale, center_dy, report.precision, report.recall,
+                                report.ap, report.mean_iou))
+    return out
+
+
+def as_toml(result):
+    """The ``[search]``, ``[heat]`` and ``[boxes]`` overrides of a tuning result."""
+    return (f"[search]\ndecision_threshold = {result.decision_threshold}\n\n"
+            f"[heat]\nthreshold = {result.heat_threshold}\nweighting = \"{result.weighting}\"\n"
+            f"peak_fraction = {result.peak_fraction}\n\n"
+            f"[boxes]\nwidth_scale = {result.width_scale}\nheight_scale = {result.height_scale}\n"
+            f"center_dy = {result.center_dy}\n")
+
+
+def format_results(results, top=10):
+    """Markdown table of the best combinations."""
+    lines = ["| decision thr | heat thr | weighting | peak fraction | width x | height x | "
+             "centre dy | precision | recall | F1 | stable neighbours | AP50 | mean IoU |",
+             "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in results[:top]:
+        lines.append(f"| {r.decision_threshold:g} | {r.heat_threshold:g} | {r.weighting} | "
+                     f"{r.peak_fraction:g} | {r.width_scale:g} | {r.height_scale:g} | "
+                     f"{r.center_dy:g} | {r.precision:.3f} | {r.recall:.3f} | {r.f1:.3f} | "
+                     f"{r.stability} | {r.ap:.3f} | {r.mean_iou:.3f} |")
+    return "\n".join(lines)

@@ -1,0 +1,300 @@
+"""Temporal logic for video: smoothing, frame skipping, patch tracking, stable ids.
+
+:class:`VideoPipeline` turns a stream of frames into boxes with track ids.
+Each temporal component is a small class, switched and tuned by the
+``[track]`` section of the TOML configuration (:class:`TrackConfig`)::
+
+    [track]
+    every = 5                        # a full detection at least every 5th frame
+    heat_smoothing = "exponential"   # or "fir" (mean of the last heat_frames maps) or "none"
+    heat_alpha = 0.25                # new = (1 - alpha) * old + alpha * current
+    box_frames = 4                   # box corners averaged over the last 4 measurements
+    tracking = true                  # patch tracking between full detections
+
+One frame goes through these steps:
+
+1. With ``tracking``, every vehicle is looked for near its last position by
+   the overlap of saturation masks with the patch it was first detected in
+   (:class:`PatchModel`); the box moves with the best match, or the vehicle
+   is *lost* when no placement overlaps more than ``min_patch_overlap``.
+2. A full detection runs when ``every`` frames have passed since the last
+   one (every frame by default without tracking), and with ``tracking`` also
+   when no vehicle is tracked, one was lost, or the frame differs enough
+   from the last fully searched one (:class:`SceneChangeTrigger`).
+3. A full detection takes the detector's hits; with ``tracking``, hits
+   entirely inside a tracked box are dropped (the vehicle is already known
+   there), so only new vehicles are searched for.  Their heat is smoothed
+   over frames (:class:`ExponentialHeat`, :class:`FirHeat`) and turned into
+   boxes by the detector.
+4. Boxes are associated with tracks (:class:`TrackTable`), so a vehicle
+   keeps its id: without tracking by IoU; with tracking a new box lying
+   mostly inside a tracked box (``merge_overlap``) is merged into it, and a
+   box matching a lost vehicle revives its id.
+5. Each track's box is the mean of its last ``box_frames`` measured boxes
+   (:class:`BoxHistory`), so boxes do not jitter.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from ..detector.detections import Detections
+from ..detector.frames import as_bgr_frame
+from ..detector.plan import search_band
+from ..errors import InputError
+from .config import TrackConfig
+from .patch import SceneChangeTrigger
+from .smoothing import make_heat_smoother
+from .tracking import TrackTable
+
+
+# -- the pipeline -------------------------------------------------------------------
+class _Stopwatch:
+    """Calls methods and sums the time they take."""
+
+    def __init__(self):
+        self.seconds = 0.0
+
+    def __call__(self, method, *args):
+        start = time.perf_counter()
+        result = method(*args)
+        self.seconds += time.perf_counter() - start
+        return result
+
+
+def hits_outside(hits, boxes):
+    """The hits whose window is not entirely inside any of ``boxes``.
+
+    Parameters
+    ----------
+    hits : fastdet.detector.scoring.Hits
+    boxes : ndarray of int, shape (T, 4)
+
+    Returns
+    -------
+    Hits
+    """
+    if len(boxes) == 0 or len(hits.scores) == 0:
+        return hits
+    h = hits.boxes[:, None, :]
+    b = np.asarray(boxes)[None, :, :]
+    inside = ((h[..., 0] >= b[..., 0]) & (h[..., 1] >= b[..., 1])
+              & (h[..., 2] <= b[..., 2]) & (h[..., 3] <= b[..., 3]))
+    keep = ~inside.any(axis=1)
+    return dataclasses.replace(hits, boxes=hits.boxes[keep], scores=hits.scores[keep],
+                               scale_index=hits.scale_index[keep])
+
+
+class VideoPipeline:
+    """Detection with temporal logic over a stream of frames.
+
+    Parameters
+    ----------
+    detector : fastdet.Detector
+        Anything with the detector's ``hits(frame)``,
+        ``heat_region(hits, size)`` and ``boxes_from_heat(heat, origin,
+        size)`` methods.
+    config : TrackConfig, optional
+        Temporal settings; defaults built in (detection on every frame,
+        exponential heat smoothing, stable ids).
+
+    Attributes
+    ----------
+    seconds : dict
+        Time spent in ``"detect"`` (the detector's calls) and ``"track"``
+        (everything temporal), summed over the frames processed.
+    frames, full_searches : int
+        Frames processed and how many of them were fully searched.
+
+    Notes
+    -----
+    Frames must come in order; a change of frame size starts over (new
+    tracks).  Frame indices are counted from ``first_index``.
+
+    Examples
+    --------
+    >>> pipeline = VideoPipeline(Detector(), TrackConfig(every=5))   # doctest: +SKIP
+    >>> capture = cv2.VideoCapture(0)                                # doctest: +SKIP
+    >>> frames = iter(lambda: capture.read()[1], None)               # doctest: +SKIP
+    >>> for index, frame, boxes, track_ids in pipeline(frames):      # doctest: +SKIP
+    ...     print(index, boxes.tolist(), track_ids.tolist())
+    """
+
+    def __init__(self, detector, config=None):
+        self.detector = detector
+        self.config = config or TrackConfig()
+        self.reset()
+
+    def reset(self):
+        """Forget all temporal state (tracks, smoothed heat, counters)."""
+        self._tracks = TrackTable(self.config)
+        self._heat = make_heat_smoother(self.config)
+        self._since_full = None
+        self._size = None
+        self.seconds = {"detect": 0.0, "track": 0.0}
+        self.last_heat = None
+        self.frames = 0
+        self.full_searches = 0
+
+    def __call__(self, frames, first_index=0):
+        """Process an iterable of frames lazily.
+
+        Parameters
+        ----------
+        frames : iterable of ndarray
+            BGR uint8 frames (grey and BGRA accepted), in order.
+        first_index : int
+            Index of the first frame (e.g. the ``--start`` frame of a video).
+
+        Yields
+        ------
+        frame_index : int
+        frame : ndarray
+            The frame as given.
+        boxes : ndarray of int32, shape (N, 4)
+            ``[x1, y1, x2, y2]``, ``x2``/``y2`` exclusive.
+        track_ids : ndarray of int64, shape (N,)
+        """
+        for offset, frame in enumerate(frames):
+            detections = self.process(frame)
+            yield first_index + offset, frame, detections.xyxy, detections.track_id
+
+    run = __call__
+
+    @property
+    def wants_frame(self):
+        """Whether the next :meth:`process` call looks at the frame's pixels.
+
+        It does not between periodic full detections without tracking; a
+        caller may then pass ``None`` instead of decoding the frame (e.g.
+        ``cv2.VideoCapture.grab`` without ``retrieve``).
+        """
+        return self.config.tracking or self._search_due()
+
+    def _search_due(self):
+        # The periodic schedule only; tracking adds its triggers on top.
+        period = self.config.search_period
+        return self._since_full is None or (period is not None
+                                            and self._since_full + 1 >= period)
+
+    def process(self, frame):
+        """Process the next frame of the stream.
+
+        Parameters
+        ----------
+        frame : ndarray or None
+            BGR uint8 frame (grey and BGRA accepted); ``None`` is allowed
+            when :attr:`wants_frame` is False.
+
+        Returns
+        -------
+        Detections
+            With ``track_id`` set.
+        """
+        start = time.perf_counter()
+        if frame is None:
+            if self.wants_frame:
+                raise InputError("this frame is needed (a full detection or tracking is due)")
+            self._since_full += 1
+            self.frames += 1
+            detections = self._tracks.visible()
+            self.seconds["track"] += time.perf_counter() - start
+            return detections
+        frame = as_bgr_frame(frame)
+        size = (frame.shape[1], frame.shape[0])
+        if size != self._size:
+            self._start_stream(size)
+        cfg = self.config
+        search = self._search_due()
+        thumbnail = None
+        if cfg.tracking:
+            lost = self._tracks.follow(frame, self._radius) if self._tracks.tracks else False
+            no_vehicle = not any(not t.lost for t in self._tracks.tracks)
+            search = search or lost or no_vehicle
+            if not search:
+                thumbnail = self._scene.thumbnail(frame)
+                search = self._scene.changed(frame, thumbnail)
+        detect_seconds = 0.0
+        if search:
+            detect_seconds = self._full_search(frame, size, thumbnail)
+            self._since_full = 0
+            self.full_searches += 1
+        else:
+            self._since_full += 1
+        detections = self._tracks.visible()
+        self.frames += 1
+        self.seconds["detect"] += detect_seconds
+        self.seconds["track"] += time.perf_counter() - start - detect_seconds
+        return detections
+
+    # -- internals ------------------------------------------------------------------
+    def _start_stream(self, size):
+        # A new frame size is a new stream: no track or heat carries over,
+        # but ids keep counting up so they stay unique for this pipeline.
+        self._tracks.reset()
+        self._heat.reset()
+        self._since_full = None
+        self._size = size
+        width, height = size
+        self._band = (0, 0, width, height)
+        plans = getattr(self.detector, "plans", None)
+        if plans is not None:
+            # Heat is only ever non-zero where some scale searches.
+            self._band = search_band(plans(size)) or self._band
+        # Like the detector's scales, the radius is given for its reference
+        # frame size (a detector without one: for the frame itself).
+        search_config = getattr(getattr(self.detector, "config", None), "search", None)
+        ref_w, ref_h = getattr(search_config, "reference_size", size)
+        scale = math.sqrt(width / ref_w * height / ref_h)
+        self._radius = int(round(self.config.search_radius * scale))
+        self._scene = SceneChangeTrigger(self.config.scene_change_threshold,
+                                         self.config.thumbnail_factor,
+                                         rows=(self._band[1], self._band[3]))
+
+    def _full_search(self, frame, size, thumbnail=None):
+        """Detect, smooth, associate; returns the seconds spent in the detector."""
+        detector = self.detector
+        in_detector = _Stopwatch()
+        hits = in_detector(detector.hits, frame)
+        if not self.config.tracking:
+            self._tracks.associate(self._detect(hits, size, in_detector), frame)
+            return in_detector.seconds
+        tracked = self._tracks.tracked_boxes()
+        everything = Detections.empty()
+        if len(tracked):
+            # The detector's own view, from all hits and unsmoothed, confirms
+            # and refits the followed vehicles independently of the tracker.
+            heat, origin = in_detector(detector.heat_region, hits, size)
+            everything = in_detector(detector.boxes_from_heat, heat, origin, size)
+        # New vehicles are searched for outside the tracked boxes only.
+        detections = self._detect(hits_outside(hits, tracked), size, in_detector)
+        self._tracks.merge(detections, everything, frame)
+        self._scene.set_reference(frame, thumbnail)
+        return in_detector.seconds
+
+    def _detect(self, hits, size, in_detector):
+        heat, origin = in_detector(self.detector.heat_region, hits, size)
+        heat, origin = self._smoothed_heat(heat, origin)   # the tracker's time
+        #: The smoothed heat over a region of the last fully searched frame, and its origin.
+        self.last_heat = (heat, origin)
+        return in_detector(self.detector.boxes_from_heat, heat, origin, size)
+
+    def _smoothed_heat(self, heat, origin):
+        if self.config.heat_smoothing == "none":
+            return heat, origin
+        # Smoothing needs the same pixels every frame: the whole search band.
+        bx1, by1, bx2, by2 = self._band
+        x1, y1 = max(origin[0], bx1), max(origin[1], by1)
+        x2 = min(origin[0] + heat.shape[1], bx2)
+        y2 = min(origin[1] + heat.shape[0], by2)
+        region = np.zeros((0, 0), np.float32)
+        if x2 > x1 and y2 > y1:
+            region = heat[y1 - origin[1]:y2 - origin[1], x1 - origin[0]:x2 - origin[0]]
+        else:
+            x1, y1 = bx1, by1
+        smoothed = self._heat.update(region, (x1 - bx1, y1 - by1), (by2 - by1, bx2 - bx1))
+        return smoothed, (bx1, by1)

@@ -1,0 +1,131 @@
+"""``fastdet bench`` and its helpers: same-frame ratios, peer settings, tables, CLI."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fastdet.bench.floor import floor_estimate
+from fastdet.bench.latency import BenchmarkRun, format_stages, format_table, run_benchmark
+from fastdet.bench.peers import native_search
+from fastdet.bench.scaling import ScalingPoint, format_scaling
+from fastdet.bench.scaling_plot import plot_scaling
+from fastdet.bench.timing import PipelineResult, speedup, spread_indices
+from fastdet.cli.app import EXIT_ERROR, main
+from fastdet.detector.config import DetectorConfig
+from fastdet.detector.features import FeatureLayout, FeatureOptions
+from fastdet.detector.model import Model
+from fastdet.detector.plan import plan_scales
+from fastdet.detector.scoring import STAGES
+
+
+@pytest.fixture(scope="module")
+def model():
+    options = FeatureOptions()
+    rng = np.random.default_rng(3)
+    weights = rng.normal(scale=0.01, size=FeatureLayout(options).length).astype(np.float32)
+    return Model(weights=weights, bias=0.0, options=options)
+
+
+@pytest.fixture(scope="module")
+def model_path(model, tmp_path_factory):
+    path = tmp_path_factory.mktemp("model") / "random.npz"
+    model.save(path)
+    return path
+
+
+def result(name, seconds, indices=None, stages=None):
+    indices = list(range(len(seconds))) if indices is None else indices
+    return PipelineResult(name, list(seconds), indices, 100.0, stages or {})
+
+
+def test_speedup_compares_only_the_frames_both_timed():
+    fast = result("fastdet 1 thread", [0.01, 0.01, 0.02, 0.04, 0.01])
+    # The slow peer timed frames 1 and 3 only: fastdet's 10 ms and 40 ms there.
+    slow = result("reference", [1.0, 4.0], indices=[1, 3])
+    assert speedup(slow, fast) == pytest.approx(2.5 / 0.025)
+    assert math.isnan(speedup(None, fast))
+    assert math.isnan(speedup(result("x", [1.0], [9]), fast))
+
+
+def test_spread_indices_cover_the_video():
+    assert spread_indices(38, 5) == [0, 9, 18, 28, 37]
+    assert spread_indices(3, 5) == [0, 1, 2]
+    assert spread_indices(10, 0) == []
+
+
+def test_native_search_spans_fastdet_window_sizes(model):
+    plans = plan_scales(DetectorConfig(), model.options, (1280, 720))
+    native = native_search(plans)
+    assert native["nlevels"] == len(plans) == 5
+    # Smallest window (32 px) becomes OpenCV's 64; the top level reaches 128 px.
+    assert native["upscale"] == pytest.approx(2.0, rel=0.01)
+    assert 32 * native["scale"] ** 4 == pytest.approx(128, rel=0.02)
+    assert native["region"] == [min(p.roi[0] for p in plans), min(p.roi[1] for p in plans),
+                                max(p.roi[2] for p in plans), max(p.roi[3] for p in plans)]
+
+
+def test_tables_show_ratios_and_stage_split():
+    stages = {stage: 1.0 for stage in STAGES}
+    stages["total"] = 10.0
+    fast = result("fastdet 1 thread", [0.02, 0.02, 0.02], stages=stages)
+    reference = result("reference", [2.0], indices=[1])
+    opencv = result("opencv same windows, 1 thread", [0.04, 0.04, 0.04])
+    table = format_table(BenchmarkRun([fast, reference, opencv], 3, (1280, 720), ()))
+    fast_row = next(line for line in table.splitlines() if line.startswith("| fastdet"))
+    assert "| 100.0x | 2.0x |" in fast_row
+    split = format_stages([fast, reference])
+    assert "python overhead" in split and "labelling" in split
+    assert "| fastdet 1 thread | 1.00 | 1.00 | 1.00 | 1.00 | 1.00 | 1.00 | 4.00 | 10.00 |" in split
+
+
+def test_missing_opencv_peer_is_a_note_not_a_failure(model, monkeypatch, tmp_path):
+    monkeypatch.setenv("FASTDET_OPENCV_PEER", str(tmp_path / "no-such-venv"))
+    frames = [np.zeros((180, 320, 3), np.uint8)] * 2
+    run = run_benchmark(frames, threads=(1,), repeat=1, reference_frames=0, opencv=True,
+                        model=model, log=lambda line: None)
+    assert [r.name for r in run.results] == ["fastdet 1 thread"]
+    assert any("setup.sh" in note for note in run.notes)
+
+
+def test_floor_counts_votes_and_multiply_adds(model):
+    plans = plan_scales(DetectorConfig(), model.options, (1280, 720))
+    estimate = floor_estimate(plans, model, fastdet_ms=30.0)
+    pixels = sum(p.scaled_size[0] * p.scaled_size[1] for p in plans)
+    assert estimate["votes"] == pixels * 3
+    assert estimate["macs"] == sum(p.n_windows for p in plans) * FeatureLayout(
+        model.options).length
+    assert estimate["distance"] == pytest.approx(30.0 / estimate["floor_ms"])
+
+
+def test_scaling_table_and_plot(tmp_path):
+    points = [ScalingPoint("size", (640, 360), 5, t, 10.0 * t, 200, 250_000) for t in (1, 2)]
+    points += [ScalingPoint("size", (1280, 720), 5, t, 30.0 * t, 861, 880_000) for t in (1, 2)]
+    points += [ScalingPoint("scales", (1280, 720), n, 1, 6.0 * n, 170 * n, 170_000 * n)
+               for n in range(1, 6)]
+    table = format_scaling(points)
+    assert "| 1280x720 | 0.92 | 0.88 | 861 | 30.0 | 60.0 | 0.0 |" in table
+    assert "| first 5 |" in table
+    png = plot_scaling(points, tmp_path / "scaling.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bench_command_prints_the_tables(capsys, model_path, data_dir):
+    code = main(["bench", "--model", str(model_path), "--frames", "2", "--repeat", "1",
+                 "--size", "640x360", "--threads", "1", "--reference-frames", "1",
+                 "--no-opencv"])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "| fastdet 1 thread | 2 |" in out
+    assert "| reference | 1 |" in out
+    assert "x faster than reference" in out
+    assert "| stage (ms/frame) | resize+convert |" in out
+    assert "| 640x360 |" in out  # fastdet.hog vs skimage line
+    assert "floor:" in out
+
+
+def test_bench_rejects_a_bad_size(capsys, model_path):
+    assert main(["bench", "--model", str(model_path), "--size", "big"]) == EXIT_ERROR
+    assert "--size must look like 1280x720" in capsys.readouterr().err

@@ -1,0 +1,171 @@
+"""The command line: output formats, and one-line errors with a non-zero exit."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from fastdet.cli.app import EXIT_ERROR, main
+from fastdet.detector.features import FeatureLayout, FeatureOptions
+from fastdet.detector.model import Model
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    """A random (but valid) model whose threshold gives some hits on real frames."""
+    options = FeatureOptions()
+    rng = np.random.default_rng(11)
+    weights = rng.normal(scale=0.01, size=FeatureLayout(options).length).astype(np.float32)
+    path = tmp_path_factory.mktemp("model") / "random.npz"
+    Model(weights=weights, bias=0.0, options=options).save(path)
+    return path
+
+
+@pytest.fixture
+def image(tmp_path, data_dir):
+    return data_dir / "test_images" / "test1.jpg"
+
+
+def one_line_error(capsys):
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("fastdet: error: "), err
+    assert "\n" not in err and "Traceback" not in err
+    return err
+
+
+def test_detect_prints_one_json_object_per_image(capsys, model_path, image, tmp_path):
+    code = main(["detect", str(image), str(image), "--model", str(model_path), "--threads", "1",
+                 "--out-dir", str(tmp_path / "drawn")])
+    assert code == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 2
+    record = json.loads(lines[0])
+    assert record["image"] == str(image)
+    assert set(record) >= {"image", "boxes", "ms"}
+    assert record["ms"] > 0
+    for box in record["boxes"]:
+        x1, y1, x2, y2 = box["box"]
+        assert 0 <= x1 < x2 <= 1280 and 0 <= y1 < y2 <= 720
+        assert isinstance(box["score"], float)
+    drawn = cv2.imread(str(tmp_path / "drawn" / image.name))
+    assert drawn is not None and drawn.shape == (720, 1280, 3)
+
+
+def test_detect_missing_image(capsys, model_path, tmp_path):
+    assert main(["detect", str(tmp_path / "nope.jpg"), "--model", str(model_path)]) == EXIT_ERROR
+    assert "not found" in one_line_error(capsys)
+
+
+def test_detect_non_image_file(capsys, model_path, tmp_path):
+    bogus = tmp_path / "notes.jpg"
+    bogus.write_text("not an image")
+    assert main(["detect", str(bogus), "--model", str(model_path)]) == EXIT_ERROR
+    assert "cannot read" in one_line_error(capsys)
+
+
+def test_detect_invalid_config(capsys, model_path, image, tmp_path):
+    config = tmp_path / "bad.toml"
+    config.write_text("[heat]\nthreshhold = 2\n")
+    assert main(["detect", str(image), "--model", str(model_path), "--config", str(config)]) \
+        == EXIT_ERROR
+    assert "threshhold" in one_line_error(capsys)
+
+
+@pytest.mark.parametrize("damage", ["truncate", "text", "missing"])
+def test_detect_damaged_model(capsys, model_path, image, tmp_path, damage):
+    target = tmp_path / "model.npz"
+    if damage == "truncate":
+        data = model_path.read_bytes()
+        target.write_bytes(data[: len(data) // 2])
+    elif damage == "text":
+        target.write_text("hello")
+    assert main(["detect", str(image), "--model", str(target)]) == EXIT_ERROR
+    one_line_error(capsys)
+
+
+def test_detect_tiny_image_gives_no_boxes(capsys, model_path, tmp_path):
+    tiny = tmp_path / "tiny.png"
+    cv2.imwrite(str(tiny), np.zeros((20, 30, 3), np.uint8))
+    assert main(["detect", str(tiny), "--model", str(model_path)]) == 0
+    assert json.loads(capsys.readouterr().out)["boxes"] == []
+
+
+def test_eval_prints_the_four_figures(capsys, model_path, data_dir):
+    images = data_dir / "test_images"
+    code = main(["eval", str(images / "annotations.json"), str(images), "--model", str(model_path),
+                 "--json", "--threads", "1"])
+    assert code == 0
+    report = json.loads(capsys.readouterr().out)
+    for key in ("precision", "recall", "ap", "mean_iou"):
+        assert 0.0 <= report[key] <= 1.0
+
+
+def test_eval_voc_switch_selects_the_plain_rule(capsys, data_dir):
+    images = data_dir / "test_images"
+    # The bundled model: it puts a box on the difficult truck of test5.
+    args = ["eval", str(images / "annotations.json"), str(images), "--json", "--threads", "1"]
+    assert main(args) == 0
+    default = json.loads(capsys.readouterr().out)
+    assert main(args + ["--voc"]) == 0
+    voc = json.loads(capsys.readouterr().out)
+    assert default["difficult_cover"] == 0.5
+    assert voc["difficult_cover"] is None
+    # The coverage rule only ever ignores detections VOC counts as false; on
+    # the test images it ignores the box on the difficult truck of test5.
+    assert voc["fp"] - default["fp"] == default["ignored"] - voc["ignored"] > 0
+    assert voc["tp"] == default["tp"]
+
+
+def test_eval_missing_annotations(capsys, model_path, tmp_path):
+    assert main(["eval", str(tmp_path / "a.json"), str(tmp_path), "--model", str(model_path)]) \
+        == EXIT_ERROR
+    one_line_error(capsys)
+
+
+def make_crops(folder, label, count, rng):
+    folder.mkdir(parents=True)
+    for i in range(count):
+        crop = rng.integers(0, 60, (64, 64, 3), dtype=np.uint8)
+        if label:  # a bright "car" rectangle with strong edges
+            crop[20:48, 8:56] = 220
+        cv2.imwrite(str(folder / f"image{i:04d}.png"), crop)
+
+
+def test_train_writes_a_loadable_model(capsys, tmp_path):
+    rng = np.random.default_rng(0)
+    make_crops(tmp_path / "data" / "vehicles" / "GTI_Far", 1, 30, rng)
+    make_crops(tmp_path / "data" / "non-vehicles" / "GTI", 0, 30, rng)
+    out = tmp_path / "m.npz"
+    code = main(["train", str(tmp_path / "data"), "--out", str(out), "--no-flip",
+                 "--spatial-size", "16", "--hist-bins", "16"])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "leak-free split 1.0000" in text and "random split 1.0000" in text
+    from fastdet.detector.model import load_model
+    model = load_model(out)
+    assert model.options.spatial_size == 16
+    assert model.report["crops"] == 60
+    assert model.report["jitter_augmentation"] is not None
+
+
+def test_train_no_jitter_switch(capsys, tmp_path):
+    rng = np.random.default_rng(0)
+    make_crops(tmp_path / "data" / "vehicles" / "GTI_Far", 1, 30, rng)
+    make_crops(tmp_path / "data" / "non-vehicles" / "GTI", 0, 30, rng)
+    out = tmp_path / "m.npz"
+    assert main(["train", str(tmp_path / "data"), "--out", str(out), "--no-flip", "--no-jitter",
+                 "--spatial-size", "16", "--hist-bins", "16"]) == 0
+    from fastdet.detector.model import load_model
+    assert load_model(out).report["jitter_augmentation"] is None
+
+
+def test_train_missing_folder(capsys, tmp_path):
+    assert main(["train", str(tmp_path), "--out", str(tmp_path / "m.npz")]) == EXIT_ERROR
+    assert "not found" in one_line_error(capsys)
+
+
+def test_train_invalid_option(capsys, tmp_path):
+    assert main(["train", str(tmp_path), "--out", str(tmp_path / "m.npz"),
+                 "--pixels-per-cell", "7"]) == EXIT_ERROR
+    assert "pixels_per_cell" in one_line_error(capsys)

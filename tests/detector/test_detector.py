@@ -1,0 +1,230 @@
+"""Detector: input handling, planning, heat and boxes (independent of the bundled model)."""
+
+import numpy as np
+import pytest
+
+from fastdet.detector.config import (
+    DEFAULT_SCALES,
+    PUBLISHED_SCALES,
+    BoxConfig,
+    DetectorConfig,
+    HeatConfig,
+    ScaleConfig,
+    SearchConfig,
+)
+from fastdet.detector.detector import Detector
+from fastdet.detector.features import FeatureLayout, FeatureOptions
+from fastdet.detector.frames import as_bgr_frame
+from fastdet.detector.model import Model
+from fastdet.detector.plan import plan_scales
+from fastdet.detector.scoring import Hits
+from fastdet.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def random_model():
+    options = FeatureOptions()
+    rng = np.random.default_rng(3)
+    weights = rng.normal(scale=0.01, size=FeatureLayout(options).length).astype(np.float32)
+    return Model(weights=weights, bias=-0.2, options=options)
+
+
+def test_frame_conversions():
+    grey = np.full((20, 30), 7, np.uint8)
+    assert as_bgr_frame(grey).shape == (20, 30, 3)
+    assert as_bgr_frame(grey[:, :, None]).shape == (20, 30, 3)
+    bgra = np.zeros((20, 30, 4), np.uint8)
+    bgra[..., 0] = 9
+    out = as_bgr_frame(bgra)
+    assert out.shape == (20, 30, 3) and out[0, 0, 0] == 9
+    strided = np.zeros((20, 60, 3), np.uint8)[:, ::2]
+    assert as_bgr_frame(strided).flags.c_contiguous
+
+
+@pytest.mark.parametrize("frame, words", [
+    (np.zeros((10, 10, 3), np.float32), "uint8"),
+    (np.zeros((10, 10, 2), np.uint8), "shape"),
+    (np.zeros((2, 10, 10, 3), np.uint8), "shape"),
+    ([[0, 1]], "numpy array"),
+])
+def test_bad_frames_raise_input_error(random_model, frame, words):
+    detector = Detector(random_model, threads=1)
+    with pytest.raises(InputError, match=words):
+        detector(frame)
+
+
+@pytest.mark.parametrize("shape", [(10, 10, 3), (63, 500, 3), (40, 40), (1, 1, 3)])
+def test_frames_smaller_than_any_window_give_no_boxes(random_model, shape):
+    detector = Detector(random_model, threads=1)
+    detections = detector(np.zeros(shape, np.uint8))
+    assert len(detections) == 0
+    assert detector.heatmap(np.zeros(shape, np.uint8)).shape == shape[:2]
+
+
+@pytest.mark.parametrize("scales, grids", [
+    (PUBLISHED_SCALES, [(2, 20), (6, 52), (6, 12), (6, 42), (5, 37)]),
+    (DEFAULT_SCALES, [(2, 20), (6, 52), (3, 77), (6, 42), (5, 37)]),
+])
+def test_plans_follow_the_configured_grid(random_model, scales, grids):
+    config = DetectorConfig(search=SearchConfig(scales=scales))
+    plans = plan_scales(config, random_model.options, (1280, 720))
+    assert [p.grid for p in plans] == grids
+    first = plans[0]
+    assert first.roi == (320, 396, 960, 460)
+    assert first.boxes[0].tolist() == [320, 396, 352, 428]
+    # Every window lies inside its region of interest.
+    for plan in plans:
+        x0, y0, x1, y1 = plan.roi
+        assert plan.boxes[:, 0].min() >= x0 and plan.boxes[:, 2].max() <= x1
+        assert plan.boxes[:, 1].min() >= y0 and plan.boxes[:, 3].max() <= y1
+
+
+def test_plans_scale_with_the_frame(random_model):
+    full = plan_scales(DetectorConfig(), random_model.options, (1280, 720))
+    half = plan_scales(DetectorConfig(), random_model.options, (640, 360))
+    assert [p.grid for p in half] == [p.grid for p in full]
+    assert half[0].roi == (160, 198, 480, 230)
+    np.testing.assert_allclose(half[0].boxes, full[0].boxes / 2, atol=1)
+
+
+def test_heatmap_and_boxes_from_known_hits(random_model):
+    config = DetectorConfig(heat=HeatConfig(threshold=1, weighting="count", peak_fraction=0),
+                            boxes=BoxConfig(min_size=1, horizon_y=0, width_scale=1,
+                                            height_scale=1, center_dy=0))
+    detector = Detector(random_model, config, threads=1)
+    boxes = np.array([[10, 10, 50, 50], [20, 20, 60, 60], [200, 200, 240, 240]], np.int32)
+    hits = Hits(boxes, np.ones(3, np.float32), np.zeros(3, np.int64), 3)
+    heat, origin = detector.heat_region(hits, (300, 300))
+    assert origin == (10, 10)
+    assert heat.max() == 2
+    detections = detector.boxes_from_heat(heat, origin, (300, 300))
+    assert detections.xyxy.tolist() == [[20, 20, 50, 50]]
+    assert detections.score.tolist() == [2.0]
+
+
+def test_box_filter_applies_size_aspect_and_horizon(random_model):
+    config = DetectorConfig(boxes=BoxConfig(min_size=20, min_aspect=0.5, max_aspect=3.0,
+                                            horizon_y=100))
+    detector = Detector(random_model, config, threads=1)
+    boxes = np.array([
+        [0, 200, 40, 240],    # kept
+        [0, 200, 10, 240],    # too narrow, aspect 0.25
+        [0, 200, 130, 230],   # aspect 4.3
+        [0, 40, 40, 90],      # above the horizon
+        [0, 80, 40, 120],     # crosses the horizon: kept
+    ], np.int32)
+    assert detector.box_finder.box_filter(boxes, (1280, 720)).tolist() == [True, False, False, False, True]
+
+
+def test_threaded_and_serial_detectors_agree_exactly(data_dir):
+    import cv2
+    import numba
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("NUMBA_NUM_THREADS caps the detector at one thread")
+    frame = cv2.imread(str(data_dir / "test_images" / "test1.jpg"))
+    serial = Detector(threads=1)
+    try:
+        threaded = Detector(threads=2)
+        assert threaded.threads == 2
+        for _ in range(2):  # the second call reuses the scales' buffers
+            a, b = serial.hits(frame), threaded.hits(frame)
+            assert a.windows_scored == b.windows_scored > 0
+            np.testing.assert_array_equal(a.boxes, b.boxes)
+            np.testing.assert_array_equal(a.scores, b.scores)
+            np.testing.assert_array_equal(a.scale_index, b.scale_index)
+        assert threaded._pool is not None  # the scales did run on the pool
+        assert len(a.scores) > 0
+        boxes_a, boxes_b = serial(frame), threaded(frame)
+        np.testing.assert_array_equal(boxes_a.xyxy, boxes_b.xyxy)
+        np.testing.assert_array_equal(boxes_a.score, boxes_b.score)
+        # The scales' stage times of every pool thread are all counted.
+        assert threaded.timings["cells"] > 0 and threaded.timings["blocks_score"] > 0
+    finally:
+        Detector(threads=1)  # restore the thread count for later tests
+
+
+def test_buffers_follow_the_plan_objects(random_model):
+    import cv2
+    detector = Detector(random_model, threads=1)
+    frame = np.random.default_rng(0).integers(0, 256, (720, 1280, 3), dtype=np.uint8)
+    small = cv2.resize(frame, (640, 360))
+    expected = {size: [detector.score_scale(detector.prepare(image), plan)
+                       for plan in detector.plans(size)]
+                for size, image in (((1280, 720), frame), ((640, 360), small))}
+    # Plans made fresh for every call (ids of dead plans get reused) still
+    # get buffers of their own size and the same scores.
+    for _ in range(3):
+        for size, image in (((1280, 720), frame), ((640, 360), small)):
+            prepared = detector.prepare(image)
+            for plan, scores in zip(plan_scales(detector.config, detector.model.options, size),
+                                    expected[size]):
+                np.testing.assert_array_equal(detector.score_scale(prepared, plan), scores)
+
+
+def test_full_width_regions_at_scale_one_are_scored_in_place(random_model):
+    detector = Detector(random_model, threads=1)
+    frame = np.random.default_rng(1).integers(0, 256, (720, 1280, 3), dtype=np.uint8)
+    prepared = detector.prepare(frame)
+    plan = detector.plans((1280, 720))[2]
+    assert plan.scaled_size[0] == 1280                      # the default 64-px scale
+    x0, y0, x1, y1 = plan.roi
+    ox, oy = prepared.origin
+    region = prepared.converted[y0 - oy:y1 - oy, x0 - ox:x1 - ox]
+    assert np.shares_memory(detector.scorer.scaled_region(region, plan, 3), prepared.converted)
+    in_place = detector.score_scale(prepared, plan)
+    copied = Detector(random_model, threads=1)
+    copied.scorer.scaled_region = lambda region, plan, channels: np.array(region)
+    np.testing.assert_array_equal(copied.score_scale(prepared, plan), in_place)
+
+
+def test_one_scale_config_scores_only_that_scale(random_model):
+    config = DetectorConfig(search=SearchConfig(scales=(ScaleConfig(64, 0.5, (0, 256), (0, 128)),),
+                                                reference_size=(256, 128)))
+    detector = Detector(random_model, config, threads=1)
+    hits = detector.hits(np.random.default_rng(0).integers(0, 255, (128, 256, 3), np.uint8))
+    assert hits.windows_scored == 3 * 7
+
+
+def _boxes_from_hits(model, windows, split, min_size=48):
+    config = DetectorConfig(heat=HeatConfig(threshold=0.5, weighting="count", peak_fraction=0,
+                                            split=split, split_min_size=min_size),
+                            boxes=BoxConfig(min_size=10, horizon_y=0, max_aspect=5, width_scale=1,
+                                            height_scale=1, center_dy=0))
+    detector = Detector(model, config, threads=1)
+    boxes = np.array(windows, np.int32)
+    hits = Hits(boxes, np.ones(len(boxes), np.float32), np.zeros(len(boxes), np.int64), len(boxes))
+    heat, origin = detector.heat_region(hits, (1280, 720))
+    return detector.boxes_from_heat(heat, origin, (1280, 720)).xyxy.tolist()
+
+
+def test_two_cars_side_by_side_are_split(random_model):
+    # Two clusters of hits whose heat islands touch with a valley between their peaks.
+    left = [[400 + dx, 400 + dy, 470 + dx, 470 + dy] for dx in (0, 5, 10) for dy in (0, 5)]
+    right = [[490 + dx, 400 + dy, 560 + dx, 470 + dy] for dx in (-10, -5, 0) for dy in (0, 5)]
+    assert _boxes_from_hits(random_model, left + right, split=False) == [[400, 400, 560, 475]]
+    assert _boxes_from_hits(random_model, left + right, split=True) == [
+        [400, 400, 480, 475], [480, 400, 560, 475]]
+
+
+def test_one_wide_car_stays_one_box(random_model):
+    # Evenly overlapping hits along a wide car: one plateau, no valley.
+    wide = [[400 + dx, 400, 480 + dx, 480] for dx in range(0, 100, 8)]
+    assert _boxes_from_hits(random_model, wide, split=True) == [[400, 400, 576, 480]]
+
+
+def test_small_parts_are_not_split_off(random_model):
+    # A valley, but one side is narrower than split_min_size: not a second car.
+    big = [[400 + dx, 400 + dy, 470 + dx, 470 + dy] for dx in (0, 5, 10) for dy in (0, 5)]
+    small = [[478 + dx, 420 + dy, 518 + dx, 460 + dy] for dx in (-4, 0, 4) for dy in (0, 5)]
+    assert _boxes_from_hits(random_model, big + small, split=True) == [[400, 400, 522, 475]]
+    # The same blob splits when parts of 20 pixels count as cars.
+    assert len(_boxes_from_hits(random_model, big + small, split=True, min_size=20)) == 2
+
+
+def test_shape_correction_scales_about_the_centre(random_model):
+    config = DetectorConfig(boxes=BoxConfig(width_scale=1.5, height_scale=0.5, center_dy=0.25))
+    detector = Detector(random_model, config, threads=1)
+    boxes = np.array([[100, 100, 200, 200], [0, 0, 40, 40]], np.int32)
+    out = detector.box_finder.reshape_boxes(boxes, (1280, 720))
+    assert out[0].tolist() == [75, 150, 225, 200]   # centre y moved by 25, half height 25
+    assert out[1].tolist() == [0, 20, 50, 40]       # clipped to the frame

@@ -1,0 +1,108 @@
+"""Hard-negative mining and threshold tuning on annotated frames."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from fastdet.cli.app import EXIT_ERROR, main
+from fastdet.detector.config import DetectorConfig, SearchConfig
+from fastdet.detector.detector import Detector
+from fastdet.detector.features import FeatureLayout, FeatureOptions
+from fastdet.detector.model import Model
+from fastdet.evaluation.annotations import load_annotations
+from fastdet.training.mine import background_hits, mine
+from fastdet.training.tune import as_toml, tune
+
+
+def test_background_hits_rules():
+    vehicles = np.array([[100, 100, 300, 200]])
+    boxes = np.array([
+        [0, 0, 50, 50],        # far away: background
+        [100, 100, 300, 200],  # the vehicle itself
+        [120, 120, 152, 152],  # small window on the vehicle: IoU < 0.1 but fully on it
+        [280, 150, 380, 250],  # a corner overlap: IoU 0.03, a tenth of the window
+        [200, 120, 300, 220],  # IoU 0.36
+    ])
+    assert background_hits(boxes, vehicles).tolist() == [True, False, False, True, False]
+    assert background_hits(boxes, np.zeros((0, 4))).all()
+
+
+@pytest.fixture(scope="module")
+def generous_model():
+    """A model that calls anything bright a vehicle: bias + mean of the spatial features."""
+    options = FeatureOptions(use_hog=False, spatial_size=16, hist_bins=0, color_space="RGB")
+    weights = np.full(FeatureLayout(options).length, 1.0 / (16 * 16 * 3), np.float32)
+    return Model(weights, bias=-100.0, options=options)
+
+
+def synthetic_frames(tmp_path):
+    """Two 256x128 images: a bright block (annotated) and a bright block that isn't."""
+    frames = {}
+    for name, annotate in (("a.png", True), ("b.png", False)):
+        image = np.zeros((128, 256, 3), np.uint8)
+        image[32:96, 64:128] = 250
+        cv2.imwrite(str(tmp_path / name), image)
+        frames[name] = [{"box": [64, 32, 128, 96], "label": "car", "difficult": False}] \
+            if annotate else []
+    path = tmp_path / "annotations.json"
+    path.write_text(json.dumps({"images": frames}))
+    return path
+
+
+def small_config():
+    from fastdet.detector.config import BoxConfig, HeatConfig, ScaleConfig
+    return DetectorConfig(
+        search=SearchConfig(scales=(ScaleConfig(64, 0.5, (0, 256), (0, 128)),),
+                            reference_size=(256, 128), decision_threshold=0.0),
+        heat=HeatConfig(threshold=0.5), boxes=BoxConfig(min_size=8, horizon_y=0))
+
+
+def test_mine_saves_only_unannotated_hits(tmp_path, generous_model):
+    annotations = load_annotations(synthetic_frames(tmp_path))
+    detector = Detector(generous_model, small_config(), threads=1)
+    sources = [tmp_path / "a.png", tmp_path / "b.png"]
+    result = mine(detector, sources, annotations, tmp_path / "out")
+    assert result.frames == 2
+    # In a.png the block is annotated; in b.png the same block is a false hit.
+    assert result.saved and all(p.name.startswith("b_") for p in result.saved)
+    crop = cv2.imread(str(result.saved[0]))
+    assert crop.shape == (64, 64, 3)
+
+
+def test_mine_cli_without_annotated_frames(tmp_path, capsys, generous_model):
+    model_path = tmp_path / "m.npz"
+    generous_model.save(model_path)
+    annotations = tmp_path / "a.json"
+    annotations.write_text(json.dumps({"images": {"other.png": []}}))
+    image = tmp_path / "x.png"
+    cv2.imwrite(str(image), np.zeros((64, 64, 3), np.uint8))
+    code = main(["mine", str(image), "--annotations", str(annotations), "--out",
+                 str(tmp_path / "o"), "--model", str(model_path)])
+    assert code == EXIT_ERROR
+    assert "no annotated frame" in capsys.readouterr().err
+
+
+def test_tune_finds_a_perfect_setting_and_writes_toml(tmp_path, generous_model):
+    annotations = load_annotations(synthetic_frames(tmp_path))
+    # Only a.png: there the bright block is the vehicle.  At threshold 50 only the
+    # window on the block is a hit; at 200 none is.
+    truth = {"a.png": annotations["a.png"]}
+    results = tune(generous_model, [tmp_path / "a.png"], truth, small_config(),
+                   grid={"decision_threshold": (50.0, 200.0), "heat_threshold": (0.5,),
+                         "weighting": ("count",), "peak_fraction": (0.0,)})
+    best = results[0]
+    assert best.recall == 1.0 and best.precision == 1.0
+    assert best.decision_threshold == 50.0
+    assert {r.recall for r in results if r.decision_threshold == 200.0} == {0.0}
+    # Results are sorted best first.
+    keys = [r.key() for r in results]
+    assert keys == sorted(keys, reverse=True)
+    text = as_toml(best)
+    import tomllib
+
+    from fastdet.detector.config import DetectorConfig as Config
+    parsed = Config.from_dict(tomllib.loads(text))
+    assert parsed.search.decision_threshold == 50.0
+    assert parsed.boxes.width_scale == best.width_scale

@@ -1,0 +1,107 @@
+"""Tests for the training augmentation in ``fastdet.training.train``."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from fastdet.detector.features import FeatureOptions
+from fastdet.training.augment import JITTER_SCALE, JITTER_SHIFT, jitter_crops
+from fastdet.training.train import _fit_and_score, cross_validate, train
+
+
+def square_crop(x0=24, y0=24, side=16):
+    crop = np.zeros((64, 64, 3), np.uint8)
+    crop[y0:y0 + side, x0:x0 + side] = 255
+    return crop
+
+
+def bright_box(crop):
+    ys, xs = np.nonzero(crop[..., 0] > 127)
+    return xs.min(), ys.min(), xs.max() + 1, ys.max() + 1
+
+
+def test_jitter_keeps_shape_and_dtype_and_is_reproducible():
+    crops = np.stack([square_crop(), square_crop(10, 30)])
+    a = jitter_crops(crops, seed=3)
+    b = jitter_crops(crops, seed=3)
+    assert a.shape == crops.shape and a.dtype == np.uint8
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(jitter_crops(crops, seed=4), a)
+    assert not np.array_equal(a, crops)
+
+
+def test_jitter_moves_and_scales_within_its_bounds():
+    crops = np.stack([square_crop()] * 200)
+    out = jitter_crops(crops, seed=0)
+    sides, centres = [], []
+    for crop in out:
+        x1, y1, x2, y2 = bright_box(crop)
+        sides.append(x2 - x1)
+        centres.append(((x1 + x2) / 2 - 32, (y1 + y2) / 2 - 32))
+    sides, centres = np.array(sides), np.abs(np.array(centres))
+    low, high = JITTER_SCALE
+    # A 16-pixel square scaled by low..high, give or take the interpolated edge pixels.
+    assert sides.min() >= int(16 * low) - 1 and sides.max() <= int(np.ceil(16 * high)) + 1
+    assert sides.max() - sides.min() >= 4  # the scale does vary
+    # The centre moves by the shift only (mirroring keeps a centred square centred).
+    assert centres.max() <= JITTER_SHIFT + 1
+    assert centres.max() >= JITTER_SHIFT / 2
+
+
+def test_jitter_with_no_scale_or_shift_only_mirrors():
+    crop = square_crop(4, 20)
+    out = jitter_crops(np.stack([crop] * 20), seed=1, scale=(1.0, 1.0), shift=0.0)
+    mirrored = crop[:, ::-1]
+    kinds = {(np.array_equal(o, crop), np.array_equal(o, mirrored)) for o in out}
+    assert kinds == {(True, False), (False, True)}
+
+
+def test_copies_are_used_for_training_only():
+    # 20 crops, 2 features; the copies of the held-out rows are poisoned (labels
+    # flipped in feature space): if they were used they would break the model.
+    rng = np.random.default_rng(0)
+    labels = np.repeat([0, 1], 10).astype(np.int8)
+    features = np.c_[labels * 4.0 + rng.normal(0, 0.3, 20), rng.normal(0, 1, 20)]
+    copy = features + rng.normal(0, 0.1, features.shape)
+    train_mask = np.ones(20, bool)
+    train_mask[[0, 1, 18, 19]] = False
+    copy[~train_mask, 0] = 4.0 - copy[~train_mask, 0] * 5
+    _, _, report, _ = _fit_and_score(features, labels, train_mask, [copy], C=1.0, seed=0)
+    assert report["train_crops"] == 2 * 16
+    assert report["test_crops"] == 4
+    assert report["accuracy"] == 1.0
+    # A single array is accepted as one copy (the flip-only call of study.py).
+    _, _, report, _ = _fit_and_score(features, labels, train_mask, copy, C=1.0, seed=0)
+    assert report["train_crops"] == 2 * 16
+    folds = np.arange(20) % 4
+    cv = cross_validate(features, labels, folds, 0, [copy, copy], [0.1, 1.0])
+    assert cv["C"] in (0.1, 1.0) and cv["folds"] == [1, 2, 3]
+
+
+def make_crops(folder, label, count, rng):
+    folder.mkdir(parents=True)
+    for i in range(count):
+        crop = rng.integers(0, 60, (64, 64, 3), dtype=np.uint8)
+        if label:
+            crop[20:48, 8:56] = 220
+        cv2.imwrite(str(folder / f"image{i:04d}.png"), crop)
+
+
+@pytest.mark.parametrize("jitter", [True, False])
+def test_train_reports_its_augmentation(tmp_path, jitter):
+    rng = np.random.default_rng(0)
+    make_crops(tmp_path / "vehicles" / "GTI_Far", 1, 20, rng)
+    make_crops(tmp_path / "non-vehicles" / "GTI", 0, 20, rng)
+    options = FeatureOptions(spatial_size=16, hist_bins=16)
+    model = train(tmp_path, options=options, jitter=jitter)
+    report = model.report
+    copies = 1 + 1 + int(jitter)  # the crop, its flip, its jittered copy
+    assert report["leak_free_split"]["train_crops"] == copies * 32
+    if jitter:
+        assert report["jitter_augmentation"] == {"scale": list(JITTER_SCALE),
+                                                 "shift": JITTER_SHIFT, "seed": 0}
+    else:
+        assert report["jitter_augmentation"] is None
+    assert report["leak_free_split"]["accuracy"] == 1.0

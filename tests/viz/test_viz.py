@@ -1,0 +1,331 @@
+"""``fastdet viz`` and the pictures of :mod:`fastdet.viz`.
+
+Each figure is checked for what a reader of it relies on: the file exists,
+has the documented pixel size, and is not blank.  Bad inputs must fail with
+an :class:`InputError` (one line at the command line) and write nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from fastdet.cli.viz import add_viz_parser
+from fastdet.detector.detections import Detections
+from fastdet.detector.features import FeatureLayout, FeatureOptions
+from fastdet.detector.model import Model
+from fastdet.errors import InputError, MissingExtraError, ModelError
+from fastdet.viz.data_figures import (
+    FEATURES_FIGURE_SIZE,
+    hog_figure,
+    hog_glyphs,
+    samples_figure,
+    samples_figure_size,
+)
+from fastdet.viz.draw import debug_frame
+from fastdet.viz.training_figures import TRAINING_REPORT_SIZE, training_report_figure
+
+#: A figure whose grey levels vary less than this is taken as blank.
+MIN_PIXEL_STD = 10.0
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    """A small random model with the default feature options, saved to disk."""
+    options = FeatureOptions()
+    rng = np.random.default_rng(5)
+    weights = rng.normal(scale=0.01, size=FeatureLayout(options).length).astype(np.float32)
+    path = tmp_path_factory.mktemp("model") / "random.npz"
+    Model(weights=weights, bias=-0.5, options=options).save(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def frame_path(data_dir):
+    # Absolute: some tests change the working folder.
+    return (data_dir / "test_images" / "test1.jpg").resolve()
+
+
+@pytest.fixture(scope="module")
+def crop_path(data_dir):
+    return sorted((data_dir / "vehicles" / "GTI_Far").glob("*.png"))[0].resolve()
+
+
+@pytest.fixture(scope="module")
+def dataset(data_dir):
+    from fastdet.training.dataset import list_dataset
+
+    return list_dataset(data_dir)
+
+
+def run_viz(argv):
+    """Parse ``fastdet viz ...`` with the real sub-parsers and run the handler."""
+    parser = argparse.ArgumentParser(prog="fastdet")
+    add_viz_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["viz", *map(str, argv)])
+    return args.handler(args)
+
+
+def assert_figure(path, size):
+    """``path`` is a readable image of ``(width, height)`` that is not blank."""
+    assert path.is_file(), f"{path} was not written"
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    assert image is not None, f"{path} is not a readable image"
+    assert (image.shape[1], image.shape[0]) == size
+    assert image.std() > MIN_PIXEL_STD, f"{path} looks blank (std {image.std():.1f})"
+    # Atomic writes leave no temporary files behind.
+    assert not list(path.parent.glob(".*.part*"))
+
+
+# -- each command writes its figure -------------------------------------------
+def test_samples(data_dir, tmp_path, capsys):
+    out = tmp_path / "samples.png"
+    assert run_viz(["samples", data_dir, "--n", 3, "--seed", 1, "--out", out]) == 0
+    assert capsys.readouterr().out.strip() == str(out)
+    assert samples_figure_size(3) == (490, 400)
+    assert_figure(out, (490, 400))
+
+
+def test_samples_seed_fixes_the_choice(dataset, tmp_path):
+    paths = [tmp_path / f"{name}.png" for name in ("a", "b", "c")]
+    for path, seed in zip(paths, (7, 7, 8)):
+        samples_figure(dataset, path, n=2, seed=seed)
+    first, again, other = (cv2.imread(str(path)) for path in paths)
+    assert np.array_equal(first, again)
+    assert not np.array_equal(first, other)
+
+
+def test_hog_of_a_crop(model_path, crop_path, tmp_path):
+    out = tmp_path / "hog.png"
+    run_viz(["hog", crop_path, "--model", model_path, "--out", out])
+    # Image + Y, Cr, Cb glyphs in a 2x2 grid of 480-pixel panels.
+    assert_figure(out, (960, 1060))
+
+
+def test_hog_of_one_channel(crop_path, tmp_path):
+    out = tmp_path / "hog_grey.png"
+    hog_figure(cv2.imread(str(crop_path)), FeatureOptions(hog_channel="gray"), out)
+    assert_figure(out, (960, 550))
+
+
+def test_features(model_path, crop_path, frame_path, tmp_path):
+    for image in (crop_path, frame_path):  # a 64x64 crop, and a frame resized to one
+        out = tmp_path / f"features_{image.stem}.png"
+        run_viz(["features", image, "--model", model_path, "--out", out])
+        assert_figure(out, FEATURES_FIGURE_SIZE)
+    assert FEATURES_FIGURE_SIZE == (1400, 900)
+
+
+def test_windows(model_path, frame_path, tmp_path):
+    out = tmp_path / "windows.png"
+    run_viz(["windows", frame_path, "--model", model_path, "--out", out])
+    assert_figure(out, (1280, 720))
+
+
+def test_detect(model_path, frame_path, data_dir, tmp_path):
+    out = tmp_path / "detect.png"
+    run_viz(["detect", frame_path, "--model", model_path, "--out", out,
+             "--annotations", data_dir / "test_images" / "annotations.json"])
+    # Four 1420-pixel-wide panels of the searched band (+- 16 rows): rows 344-634.
+    from fastdet.detector.config import DetectorConfig
+    from fastdet.detector.features import FeatureOptions
+    from fastdet.detector.plan import plan_scales
+    from fastdet.viz.search_figures import detect_figure_size
+    plans = plan_scales(DetectorConfig(), FeatureOptions(), (1280, 720))
+    size = detect_figure_size((720, 1280, 3), plans)
+    assert size == (1600, 1432)
+    assert_figure(out, size)
+
+
+def test_default_output_names(model_path, frame_path, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    run_viz(["windows", frame_path, "--model", model_path])
+    assert capsys.readouterr().out.strip() == "viz_windows_test1.png"
+    assert (tmp_path / "viz_windows_test1.png").is_file()
+
+
+def test_svg_output_follows_the_suffix(model_path, frame_path, tmp_path):
+    out = tmp_path / "windows.svg"
+    run_viz(["windows", frame_path, "--model", model_path, "--out", out])
+    assert out.read_text()[:200].lstrip().startswith("<?xml")
+
+
+# -- library figures for other commands ---------------------------------------
+def test_training_report_figure(tmp_path):
+    rng = np.random.default_rng(0)
+    labels = np.repeat([1, 0], 300)
+    scores = np.where(labels == 1, 2.0, -2.0) + rng.normal(size=labels.size)
+    report = {"random_split": {"accuracy": 0.99, "test_crops": 600},
+              "leak_free_split": {"accuracy": 0.97, "test_crops": 600}, "crops": 3000,
+              "C": 0.001, "cross_validation": {"C": 0.001, "threshold": 0.2},
+              "nested": {"ignored": True}}
+    out = training_report_figure(report, scores, labels, tmp_path / "report.png")
+    assert_figure(out, TRAINING_REPORT_SIZE)
+    assert TRAINING_REPORT_SIZE == (1500, 520)
+
+
+@pytest.mark.parametrize("scores, labels, words", [
+    ([], [], "one label per test score"),
+    ([0.1, 0.2], [1], "one label per test score"),
+    ([0.1, np.nan], [1, 0], "finite"),
+    ([0.1, 0.2], [1, 2], "1 \\(vehicle\\)"),
+])
+def test_training_report_rejects_bad_scores(tmp_path, scores, labels, words):
+    out = tmp_path / "report.png"
+    with pytest.raises(InputError, match=words):
+        training_report_figure({}, scores, labels, out)
+    assert not out.exists()
+
+
+def test_debug_frame(frame_path):
+    frame = cv2.imread(str(frame_path))
+    detections = Detections([[800, 400, 950, 500]], [3.0])
+    heat = np.zeros(frame.shape[:2], np.float32)
+    heat[400:500, 800:950] = 3.0
+    before = frame.copy()
+    shown = debug_frame(frame, detections, heat, {"cells": 12.5, "total": 40.0})
+    assert shown.shape == frame.shape and shown.dtype == np.uint8
+    assert np.array_equal(frame, before), "the input frame must not be drawn on"
+    changed = np.any(shown != frame, axis=2)
+    assert changed[:60, :150].mean() > 0.3, "timings box missing from the top-left corner"
+    assert changed[4:180, 1280 - 324:1276].mean() > 0.5, "heat inset missing from the top right"
+    assert changed[400, 800:950].any(), "detection box not drawn"
+    # The inset shows the hot region brightly (inferno: bright is red/yellow).
+    inset = shown[4:184, 956:1276]
+    assert inset[..., 2].max() > 200
+
+
+def test_debug_frame_without_heat_or_boxes():
+    frame = np.full((90, 160, 3), 80, np.uint8)
+    for heat in (None, np.zeros((0, 0), np.float32)):
+        shown = debug_frame(frame, Detections.empty(), heat, {})
+        assert shown.shape == frame.shape
+
+
+def test_debug_frame_rejects_a_bad_heat_map():
+    with pytest.raises(InputError, match="2-D"):
+        debug_frame(np.zeros((90, 160, 3), np.uint8), Detections.empty(),
+                        np.zeros((2, 3, 4), np.float32), {})
+
+
+# -- HOG glyphs ---------------------------------------------------------------
+def test_glyphs_run_along_edges():
+    """A vertical edge (horizontal gradient) gives vertical glyphs, and vice versa."""
+    cell_px = 24
+    for axis in (1, 0):
+        image = np.zeros((32, 32, 1), np.uint8)
+        if axis == 1:
+            image[:, 16:] = 200  # vertical edge
+        else:
+            image[16:] = 200  # horizontal edge
+        from fastdet.kernels.hog import cell_histograms
+        cells = cell_histograms(image, (8, 8), 9)[:, :, 0]
+        glyphs = hog_glyphs(cells, cell_px)
+        assert glyphs.shape == (4 * cell_px, 4 * cell_px)
+        # The cell left of / above the edge holds one line through its centre.
+        cell = glyphs[cell_px:2 * cell_px, cell_px:2 * cell_px]
+        rows, cols = np.nonzero(cell > 0.5)
+        spread_y, spread_x = np.ptp(rows), np.ptp(cols)
+        if axis == 1:
+            assert spread_y > 3 * spread_x
+        else:
+            assert spread_x > 3 * spread_y
+
+
+def test_glyph_length_follows_the_bin_value():
+    cells = np.zeros((1, 2, 9), np.float32)
+    cells[0, 0, 4] = 1.0
+    cells[0, 1, 4] = 0.5
+    glyphs = hog_glyphs(cells, 32)
+    strong, weak = (glyphs[:, :32] > 0.5).sum(), (glyphs[:, 32:] > 0.5).sum()
+    assert 1.6 < strong / weak < 2.4
+
+
+# -- bad input ----------------------------------------------------------------
+@pytest.mark.parametrize("command", ["hog", "features", "windows", "detect"])
+def test_missing_image(model_path, tmp_path, command):
+    out = tmp_path / "out.png"
+    with pytest.raises(InputError, match="image not found"):
+        run_viz([command, tmp_path / "nope.jpg", "--model", model_path, "--out", out])
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["hog", "features", "windows", "detect"])
+def test_unreadable_image(model_path, tmp_path, command):
+    bad = tmp_path / "bad.png"
+    bad.write_text("not an image")
+    with pytest.raises(InputError, match="cannot read"):
+        run_viz([command, bad, "--model", model_path, "--out", tmp_path / "out.png"])
+
+
+def test_missing_data_dir(tmp_path):
+    with pytest.raises(InputError, match="data folder not found"):
+        run_viz(["samples", tmp_path / "nope", "--out", tmp_path / "out.png"])
+
+
+def test_data_dir_without_class_folders(tmp_path):
+    (tmp_path / "data").mkdir()
+    with pytest.raises(InputError, match="vehicles"):
+        run_viz(["samples", tmp_path / "data", "--out", tmp_path / "out.png"])
+
+
+@pytest.mark.parametrize("n", [0, -3, 257])
+def test_bad_sample_count(dataset, tmp_path, n):
+    with pytest.raises(InputError, match="1..256"):
+        samples_figure(dataset, tmp_path / "out.png", n=n)
+
+
+def test_missing_model(frame_path, tmp_path):
+    with pytest.raises(ModelError, match="not found"):
+        run_viz(["windows", frame_path, "--model", tmp_path / "nope.npz",
+                 "--out", tmp_path / "out.png"])
+
+
+@pytest.mark.parametrize("name, words", [("out.xyz", "must end in one of"),
+                                         ("missing/out.png", "output folder not found")])
+def test_bad_output_path(model_path, frame_path, tmp_path, name, words):
+    with pytest.raises(InputError, match=words):
+        run_viz(["windows", frame_path, "--model", model_path, "--out", tmp_path / name])
+
+
+def test_annotations_without_the_frame(model_path, frame_path, tmp_path):
+    annotations = tmp_path / "a.json"
+    annotations.write_text(json.dumps({"images": {"other.jpg": []}}))
+    with pytest.raises(InputError, match="no entry for test1.jpg"):
+        run_viz(["detect", frame_path, "--model", model_path, "--annotations", annotations,
+                 "--out", tmp_path / "out.png"])
+
+
+def test_frame_smaller_than_every_window(model_path, tmp_path):
+    # Windows scale with the frame, so only an odd shape can be smaller than
+    # all of them: here the short frame leaves no whole window in any band.
+    tiny = tmp_path / "tiny.png"
+    cv2.imwrite(str(tiny), np.zeros((30, 1000, 3), np.uint8))
+    with pytest.raises(InputError, match="smaller than every search window"):
+        run_viz(["windows", tiny, "--model", model_path, "--out", tmp_path / "out.png"])
+
+
+def test_missing_matplotlib_is_one_clear_error(frame_path, model_path, tmp_path, monkeypatch):
+    for name in ("matplotlib", "matplotlib.figure", "matplotlib.backend_bases",
+                 "matplotlib.backends.backend_agg"):
+        monkeypatch.setitem(sys.modules, name, None)  # makes `import` raise ImportError
+    for name in [m for m in sys.modules if m.startswith("fastdet.viz.") and "figure" in m]:
+        monkeypatch.delitem(sys.modules, name)  # imported afresh, as in a new process
+    with pytest.raises(MissingExtraError, match=r"pip install 'fastdet\[viz\]'"):
+        run_viz(["windows", frame_path, "--model", model_path, "--out", tmp_path / "out.png"])
+
+
+def test_errors_reach_the_command_line_as_one_line(tmp_path, capsys):
+    from fastdet.cli.app import build_parser, main
+
+    commands = build_parser()._subparsers._group_actions[0].choices
+    if "viz" not in commands:
+        pytest.skip("fastdet.cli.app does not register `viz` yet")
+    assert main(["viz", "hog", str(tmp_path / "nope.jpg")]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and error.startswith("fastdet: error: image not found")
