@@ -14,15 +14,14 @@ from .detector.detector import Detector
 from .detector.features import FeatureOptions
 from .detector.hog_api import hog
 from .detector.model import Model, load_model
+from ._version import __version__
 from .errors import ConfigError, FastdetError, InputError, ModelError
 from .training.train import train
 from .video.config import TrackConfig, load_track_config
 from .video.pipeline import VideoPipeline
 
-__version__ = "0.1.0"
-
 __all__ = [
     "ConfigError", "Detections", "Detector", "DetectorConfig", "FastdetError", "FeatureOptions",
     "InputError", "Model", "ModelError", "TrackConfig", "VideoPipeline", "hog", "load_config",
-    "load_model", "load_track_config", "train",
+    "__version__", "load_model", "load_track_config", "train",
 ]

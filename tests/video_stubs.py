@@ -104,7 +104,7 @@ class BlockDetector:
         return Detections(boxes, component_max(labels, count, heat))
 
 
-def model_path_or_skip():
+def bundled_model_path():
     """The model for real-video tests: the bundled default, else ``$FASTDET_TEST_MODEL``.
 
     Returns ``None`` for the bundled model (``Detector()``'s default).
@@ -118,4 +118,5 @@ def model_path_or_skip():
         return None
     if os.environ.get("FASTDET_TEST_MODEL"):
         return os.environ["FASTDET_TEST_MODEL"]
-    pytest.skip("the bundled default model is not built yet (or set FASTDET_TEST_MODEL)")
+    pytest.fail("the bundled model fastdet/data/default_model.npz is missing (build it with "
+                "tools/build_default_model.py, or set FASTDET_TEST_MODEL)", pytrace=False)

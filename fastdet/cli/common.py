@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
+import sys
+import threading
+
 
 def add_model_options(parser):
     """``--model``, ``--config`` and ``--threads``: what building a detector needs."""
@@ -23,6 +27,35 @@ def make_detector(args):
 
 def log_to_stderr(line):
     """Progress lines of long commands go to stderr, flushed at once."""
-    import sys
-
     print(line, file=sys.stderr, flush=True)
+
+
+#: Seconds the first detection may take before the user is told kernels are compiling;
+#: loading them from the cache takes well under this.
+COMPILE_NOTICE_AFTER = 1.5
+
+
+@contextlib.contextmanager
+def compile_notice(enabled=True, stream=None):
+    """Say once, on stderr, that kernels are compiling if the block takes that long.
+
+    Wrap the first detection of a command in it.  With a filled cache the
+    block ends long before :data:`COMPILE_NOTICE_AFTER` and nothing is
+    printed; with an empty one the user learns why the first frame waits.
+    """
+    from ..kernels.cache import TYPICAL_COMPILE_SECONDS, kernel_cache_dir
+
+    stream = stream or sys.stderr
+
+    def announce():
+        print(f"fastdet: compiling kernels, once per machine: ~{TYPICAL_COMPILE_SECONDS} s "
+              f"(cached in {kernel_cache_dir()})", file=stream, flush=True)
+
+    timer = threading.Timer(COMPILE_NOTICE_AFTER, announce)
+    timer.daemon = True
+    if enabled:
+        timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()

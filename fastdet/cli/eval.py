@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from ..files.images import read_image
-from .common import add_model_options, make_detector
+from .common import add_model_options, compile_notice, make_detector
 
 
 def add_eval_parser(subparsers):
@@ -36,8 +36,12 @@ def cmd_eval(args):
     detector = make_detector(args)
     image_dir = Path(args.image_dir)
     results = {}
-    for name in sorted(annotations):
-        detections = detector(read_image(image_dir / name))
+    for index, name in enumerate(sorted(annotations)):
+        image = read_image(image_dir / name)
+        if index == 0:
+            with compile_notice():
+                detector.warm_up(image)
+        detections = detector(image)
         results[name] = (detections.xyxy, detections.score)
     cover = None if args.voc else DIFFICULT_COVER
     report = evaluate(results, annotations, iou_threshold=args.iou, difficult_cover=cover)

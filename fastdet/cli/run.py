@@ -16,6 +16,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..video.detection_files import FORMATS
+from .common import compile_notice
 
 
 def add_run_parser(subparsers):
@@ -175,12 +176,17 @@ def cmd_run(args):
             det_out = stack.enter_context(DetectionWriter(detections_path, args.format))
         if announce and not args.quiet:
             print(f"fastdet: no --out or --detections given; writing {out}", file=sys.stderr)
+        warmup = 0.0
+        warm_up = getattr(pipeline.detector, "warm_up", None)
+        if warm_up is not None:
+            with compile_notice(enabled=not args.quiet):
+                warmup = warm_up(reader.first_frame)
         progress = Progress(reader.expected_frames,
                             enabled=not args.quiet and sys.stderr.isatty())
         # An interrupt comes back as stats.interrupted, so leaving this block
         # normally completes both outputs with every frame done so far.
         stats = stream(reader, pipeline, args.start, video_out, det_out, progress,
-                       debug_view=args.debug_view)
+                       debug_view=args.debug_view, warmup=warmup)
         progress.clear()
     print(stats.summary([p for p in (out, detections_path) if p is not None]), flush=True)
     if stats.interrupted:

@@ -7,11 +7,18 @@ layer (``NUMBA_THREADING_LAYER``) the portable ``workqueue`` layer is used.
 The detector itself runs only serial kernels, from a pool of threads (see
 ``fastdet.detector.detector``): workqueue must not start parallel kernels from several
 threads at once.
+
+Compiled kernels are cached in the user's cache folder, never inside the
+installed package (see :mod:`fastdet.kernels.cache`).
 """
 
 import os
 
 import numba
 
+from . import cache
+
 if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"
+# Before any kernel module is imported: each takes its cache folder when defined.
+cache.configure()

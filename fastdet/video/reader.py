@@ -131,6 +131,11 @@ class VideoReader:
         raise InputError(f"--start {self.start} is past the end of {self.path}{total}")
 
     @property
+    def first_frame(self):
+        """The first frame to yield, read at opening (``None`` once iteration has begun)."""
+        return self._first
+
+    @property
     def expected_frames(self):
         """Frames this reader should yield, from the header (``None`` if unknown)."""
         last = self.frame_count

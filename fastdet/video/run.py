@@ -38,6 +38,8 @@ class RunStats:
     wall: float = 0.0
     full_searches: int = 0
     interrupted: bool = False
+    #: Seconds spent loading (or compiling) the kernels before the first frame; not in ``wall``.
+    warmup: float = 0.0
 
     def summary(self, outputs):
         """The one-line report printed at the end of a run."""
@@ -48,7 +50,8 @@ class RunStats:
         written = "; wrote " + ", ".join(str(p) for p in outputs) if outputs else ""
         return (f"{head}{self.frames} frames, {self.boxes} detections, {len(self.track_ids)} "
                 f"tracks, {self.full_searches} full searches, {fps:.1f} fps; "
-                f"ms/frame: {per_frame}{written}")
+                f"ms/frame: {per_frame}; kernels ready in {self.warmup:.1f} s before the "
+                f"first frame (not in fps){written}")
 
 
 def _debug_view(frame, detections, pipeline):
@@ -68,7 +71,7 @@ def _debug_view(frame, detections, pipeline):
 
 
 def stream(reader, pipeline, first_index, video_out=None, det_out=None, progress=None,
-           debug_view=False):
+           debug_view=False, warmup=0.0):
     """Push every frame of ``reader`` through the pipeline to the outputs.
 
     Parameters
@@ -85,6 +88,8 @@ def stream(reader, pipeline, first_index, video_out=None, det_out=None, progress
     progress : Progress, optional
     debug_view : bool
         Draw the live heat map and per-stage timings into the video frames.
+    warmup : float
+        Seconds the caller spent loading the kernels first (reported, not timed).
 
     Returns
     -------
@@ -92,7 +97,7 @@ def stream(reader, pipeline, first_index, video_out=None, det_out=None, progress
         With ``interrupted`` set when Ctrl-C stopped the run: the interrupt
         is absorbed so the caller can complete the outputs first.
     """
-    stats = RunStats()
+    stats = RunStats(warmup=warmup)
     seconds = stats.seconds
     start = time.perf_counter()
     if video_out is None and hasattr(reader, "frames"):

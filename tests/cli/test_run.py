@@ -11,7 +11,7 @@ import shutil
 import cv2
 import numpy as np
 import pytest
-from video_stubs import BlockDetector, model_path_or_skip, moving_block
+from video_stubs import BlockDetector, bundled_model_path, moving_block
 
 from fastdet.cli import app as cli
 from fastdet.cli import run as commands_run
@@ -33,7 +33,7 @@ def fastdet(monkeypatch):
 
 @pytest.fixture
 def model_args():
-    path = model_path_or_skip()
+    path = bundled_model_path()
     return [] if path is None else ["--model", path]
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from skimage.feature import hog as skimage_hog
@@ -67,7 +68,6 @@ def test_feature_vector_is_skimage_ravel(kind, channel_axis):
 
 
 def test_real_frame_matches_skimage(data_dir):
-    cv2 = pytest.importorskip("cv2")
     frame = cv2.imread(str(data_dir / "test_images" / "test1.jpg"))
     assert frame is not None, "test_images/test1.jpg is unreadable"
     frame = np.ascontiguousarray(frame[360:520, 200:520])

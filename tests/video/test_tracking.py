@@ -409,11 +409,11 @@ def test_pipeline_accepts_grey_frames():
 # -- with the real detector -----------------------------------------------------------------
 def test_default_pipeline_reports_what_the_detector_finds(data_dir):
     import cv2
-    from video_stubs import model_path_or_skip
+    from video_stubs import bundled_model_path
 
     from fastdet.detector.detector import Detector
 
-    detector = Detector(model_path_or_skip(), threads=1)
+    detector = Detector(bundled_model_path(), threads=1)
     capture = cv2.VideoCapture(str(data_dir / "test_video.mp4"))
     frames = [capture.read()[1] for _ in range(4)]
     pipeline = VideoPipeline(detector, raw())
