@@ -92,29 +92,76 @@ def counted_loop(builder, count, initial, body):
     return values
 
 
-def _has_feature(name):
-    """Whether the CPU Numba compiles for has ``name``.
+# Each probe is a tiny function whose machine code shows whether the target
+# CPU has the feature: LLVM selects the feature's instruction (register width
+# included) only when the target has it.  "min-legal-vector-width" keeps
+# CPUs that prefer 256-bit vectors (Skylake-X) from splitting the 512-bit ones.
+_PROBES = {
+    "ssse3": ("declare <16 x i8> @llvm.abs.v16i8(<16 x i8>, i1)\n"
+              "define void @probe(<16 x i8>* %p) {\n"
+              "  %a = load <16 x i8>, <16 x i8>* %p\n"
+              "  %r = call <16 x i8> @llvm.abs.v16i8(<16 x i8> %a, i1 false)\n"
+              "  store <16 x i8> %r, <16 x i8>* %p\n  ret void\n}\n", "pabsb"),
+    "avx2": ("define void @probe(<8 x i32>* %p) {\n"
+             "  %a = load <8 x i32>, <8 x i32>* %p\n  %r = add <8 x i32> %a, %a\n"
+             "  store <8 x i32> %r, <8 x i32>* %p\n  ret void\n}\n", "vpaddd\t%ymm"),
+    "avx512f": ("define void @probe(<16 x i32>* %p) #0 {\n"
+                "  %a = load <16 x i32>, <16 x i32>* %p\n  %r = add <16 x i32> %a, %a\n"
+                "  store <16 x i32> %r, <16 x i32>* %p\n  ret void\n}\n"
+                'attributes #0 = { "min-legal-vector-width"="512" }\n', "vpaddd\t%zmm"),
+    "avx512bw": ("define void @probe(<32 x i16>* %p) #0 {\n"
+                 "  %a = load <32 x i16>, <32 x i16>* %p\n  %r = add <32 x i16> %a, %a\n"
+                 "  store <32 x i16> %r, <32 x i16>* %p\n  ret void\n}\n"
+                 'attributes #0 = { "min-legal-vector-width"="512" }\n', "vpaddw\t%zmm"),
+}
 
-    That is the host unless ``NUMBA_CPU_NAME`` / ``NUMBA_CPU_FEATURES`` select
-    another target (portable caches, containers): then only features listed
-    in ``NUMBA_CPU_FEATURES`` count, and with a CPU name alone none do.
+
+def _target_features(names):
+    """Which of the features ``names`` the CPU Numba compiles for has.
+
+    That is the host CPU unless ``NUMBA_CPU_NAME`` / ``NUMBA_CPU_FEATURES``
+    select another target (portable caches, tests of the other paths).  Numba
+    then compiles for that CPU name with the features of
+    ``NUMBA_CPU_FEATURES`` if set (empty: the CPU name's own features) and
+    the *host's* features otherwise, so ``NUMBA_CPU_NAME=haswell`` alone still
+    uses AVX-512 on an AVX-512 host.  Flags are never taken from a vendor or
+    model name: for the host they are LLVM's host feature list; for another
+    target LLVM itself is asked, by compiling a probe per feature for the same
+    CPU name and feature string as Numba and looking for the feature's
+    instruction in the machine code.
     """
     if platform.machine().lower() not in ("x86_64", "amd64"):
-        return False
+        return dict.fromkeys(names, False)
+    from llvmlite import binding
     from numba.core import config
-    if config.CPU_FEATURES:
-        return f"+{name}" in config.CPU_FEATURES.split(",")
-    if config.CPU_NAME:
-        return False
     try:
-        from llvmlite import binding
-        return f"+{name}" in binding.get_host_cpu_features().flatten().split(",")
-    except Exception:  # noqa: BLE001 - no feature list: take the portable path
-        return False
+        host = binding.get_host_cpu_features().flatten()
+    except Exception:  # noqa: BLE001 - no feature list: take the portable paths
+        host = None
+    if config.CPU_NAME is None and config.CPU_FEATURES is None:
+        if host is None:
+            return dict.fromkeys(names, False)
+        listed = host.split(",")
+        return {name: f"+{name}" in listed for name in names}
+    features = config.CPU_FEATURES if config.CPU_FEATURES is not None else host or ""
+    cpu = config.CPU_NAME or binding.get_host_cpu_name()
+    binding.initialize_native_target()
+    binding.initialize_native_asmprinter()
+    machine = binding.Target.from_default_triple().create_target_machine(
+        cpu=cpu, features=features, opt=0)
+    found = {}
+    for name in names:
+        source, instruction = _PROBES[name]
+        found[name] = instruction in machine.emit_assembly(binding.parse_assembly(source))
+    return found
 
+
+_FOUND = _target_features(("ssse3", "avx2", "avx512f", "avx512bw"))
 
 #: Instruction sets of the CPU Numba compiles for, which pick the kernels'
-#: vector paths (resize's horizontal pass, colour's bin-table tile sums).
-HAVE_SSSE3 = _has_feature("ssse3")
-HAVE_AVX2 = HAVE_SSSE3 and _has_feature("avx2")
-HAVE_AVX512BW = HAVE_AVX2 and _has_feature("avx512f") and _has_feature("avx512bw")
+#: vector paths (resize's horizontal pass, colour's bin-table tile sums, the
+#: lane count of hog's cell blocks).  Each implies the ones before it.
+HAVE_SSSE3 = _FOUND["ssse3"]
+HAVE_AVX2 = HAVE_SSSE3 and _FOUND["avx2"]
+HAVE_AVX512F = HAVE_AVX2 and _FOUND["avx512f"]
+HAVE_AVX512BW = HAVE_AVX512F and _FOUND["avx512bw"]

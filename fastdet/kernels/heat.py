@@ -84,7 +84,7 @@ def _edge_starts(index, size):
     return starts
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def heat_cells(boxes, weights, x0, y0, height, width):
     """Heat of weighted boxes on the grid of cells their edges cut a map into.
 
@@ -178,7 +178,7 @@ def heat_cells(boxes, weights, x0, y0, height, width):
     return row_starts, col_starts, cells
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _paint(heat, row_starts, col_starts, cells):
     """Write every cell's value over its pixels (``heat`` fully overwritten)."""
     width = heat.shape[1]
@@ -193,7 +193,7 @@ def _paint(heat, row_starts, col_starts, cells):
                 heat[other, x] = heat[y, x]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def accumulate_heat_into(heat, boxes, weights):
     """Add the weighted-box heat map into an existing heat map, in place.
 
@@ -240,7 +240,7 @@ def accumulate_heat_into(heat, boxes, weights):
                     heat[y, x] += value
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def accumulate_heat(boxes, weights, height, width):
     """Sum box weights into a new per-pixel heat map.
 
@@ -288,7 +288,7 @@ def accumulate_heat(boxes, weights, height, width):
     return heat
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def box_heat_region(boxes, weights, width, height):
     """Heat of weighted boxes over their bounding region within a frame.
 

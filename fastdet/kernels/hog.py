@@ -38,7 +38,7 @@ from numba import njit, prange, types, uint64
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ._llvm import load_vector, store_vector
+from ._llvm import HAVE_AVX2, HAVE_AVX512F, load_vector, store_vector
 
 # A gradient whose cross product with a bin boundary is below this fraction of
 # its magnitude is re-binned with the exact atan2 rule.  float32 rounding of
@@ -498,19 +498,27 @@ def _output(out, shape):
 #
 # For the default configuration (nbins 9, 8x8 cells, 1 or 3 channels) a cell
 # row is processed in groups of _GROUP_CELLS cells (G = 2 * 8 * C elements of
-# the flat row, whole 16-lane vectors).  For each 16-element piece of a group,
-# one block of LLVM vector IR walks the cell row's 8 image rows, computes the
-# gradients and the exact float32 magnitude of 16 elements at once.  The bin
-# rule below is a count of nested threshold conditions, so instead of a bin per
-# element the block keeps nbins + 1 vector accumulators: the magnitudes of
-# acute and of obtuse elements, over all elements and over those past each
-# threshold (two masked adds per threshold); they stay in registers for the 8
-# rows.  Afterwards constant shuffles sum the lanes of each (cell, channel) (a
-# fixed tree over the cell's pixels), neighbouring accumulators are subtracted
-# into bins, and the block stores nbins x cells x C sums.  This
-# replaces the per-element table lookup and memory scatter of the general
-# uint8 path.  Cells that do not fill a whole group are done one element at a
-# time with the lookup table.
+# the flat row, whole vectors of _LANES lanes: 16 with AVX-512, 8 with AVX2,
+# 4 otherwise).  For each piece of _LANES elements of a group, one block of
+# LLVM vector IR walks the cell row's 8 image rows, computes the gradients and
+# the exact float32 magnitude of its elements at once.  The bin rule below is
+# a count of nested threshold conditions, so instead of a bin per element the
+# block keeps nbins + 1 vector accumulators: the magnitudes of acute and of
+# obtuse elements, over all elements and over those past each threshold (two
+# masked adds per threshold); they stay in registers for the 8 rows.
+# Afterwards neighbouring accumulators are subtracted into bins lane by lane,
+# a planned tree of two-source shuffles and adds sums each (bin, cell,
+# channel)'s pixels (_reduction_plan: all bins share the shuffles), and the
+# block stores the cell means.  This replaces the per-element table lookup and
+# memory scatter of the general uint8 path.  Cells that do not fill a whole
+# group are done one element at a time with the lookup table.
+#
+# Measured on the detector's five scales of a 1280x720 frame (1.1 M pixels,
+# 3 channels, one thread, min of 60 runs): with AVX2 (NUMBA_CPU_NAME=haswell
+# NUMBA_CPU_FEATURES=) 16-lane pieces spilled their accumulators (1132 stack
+# moves in the kernel) and took 3.45-3.71 ms; 8 lanes with AND-then-add 2.6 ms.
+# With AVX-512 the shuffle tree instead of per-bin reductions changed little
+# (1.77-1.84 -> 1.69-1.73 ms): the row loop dominates.
 #
 # The bin comes from a rule, not the table: with ax = |gx|, ay = |gy| and
 # t_k = float32(tan(k * 180 / nbins deg)), k' = number of k (1 .. nbins // 2)
@@ -522,7 +530,14 @@ _FAST_NBINS = 9
 _FAST_PPC = (8, 8)
 _FAST_CHANNELS = (1, 3)
 _GROUP_CELLS = 2
-_LANES = 16
+#: Lanes of a piece: the accumulators (nbins + 1 vectors) must stay in
+#: registers over a cell's rows.  AVX-512 has 32 zmm registers, so 16 float
+#: lanes; AVX2 has 16 ymm registers, too few for ten 16-lane (two-register)
+#: accumulators, so 8; plain SSE 16 xmm registers, so 4.
+_LANES = 16 if HAVE_AVX512F else 8 if HAVE_AVX2 else 4
+#: Masked adds as an AND of the value, then an add (see the block's
+#: masked_add): where there is no AVX-512 masked add.
+_MASK_THEN_ADD = not HAVE_AVX512F
 
 
 def _fast_thresholds(nbins):
@@ -560,35 +575,120 @@ def _fast_rule_ok(nbins=_FAST_NBINS):
     return bool(np.array_equal(rule[nonzero], lut[nonzero]))
 
 
-def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
+class _ReductionPlan:
+    """How a cell block adds up its per-lane bin sums (see :func:`_reduction_plan`).
+
+    ``levels``: per level, the output vectors as ``(left, right)`` shuffles,
+    each ``((first_source, second_source), mask)`` over the level's input
+    vectors (``second_source`` None: one source); an output is the sum of its
+    two shuffles.  ``index[(b * cells + cell) * channels + c]``: where the
+    mean of bin ``b`` of (cell, channel) lands in the stored vectors;
+    ``size``: how many floats they hold.
+    """
+
+    def __init__(self, levels, index, size):
+        self.levels, self.index, self.size = levels, index, size
+
+
+@functools.lru_cache(maxsize=None)
+def _reduction_plan(lanes, channels, ppc_x, nbins):
+    """Plan the pixel sums of a cell block's ``nbins`` x pieces bin vectors.
+
+    Lane ``l`` of piece ``q`` of a bin vector holds flat-row element
+    ``e = q * lanes + l``: pixel ``(e // channels) % ppc_x`` of cell
+    ``e // (channels * ppc_x)``, channel ``e % channels``.  Each level pairs
+    every (bin, cell, channel, pixel p < half) with its pixel ``p + half``;
+    the pairs are packed greedily into output vectors whose left and right
+    operands each come from at most two input vectors (one two-source shuffle
+    each).  Summing every bin's pieces separately, as a tree over a
+    concatenated vector, took about five times as many shuffles.
+    """
+    assert ppc_x & (ppc_x - 1) == 0, "pixels per cell row must be a power of two"
+    pieces = _GROUP_CELLS * ppc_x * channels // lanes
+    where = {}
+    for b in range(nbins):
+        for q in range(pieces):
+            for lane in range(lanes):
+                e = q * lanes + lane
+                key = (b, e // (channels * ppc_x), e % channels)
+                where[key, (e // channels) % ppc_x] = (b * pieces + q, lane)
+    width = ppc_x
+    levels = []
+    while width > 1:
+        half = width // 2
+        pairs = sorted(((where[key, p], where[key, p + half]), (key, p))
+                       for (key, p) in where if p < half)
+        outputs, current = [], []
+
+        def flush():
+            if not current:
+                return
+            shuffles = []
+            for side in (0, 1):
+                sources = []
+                for operands, _ in current:
+                    if operands[side][0] not in sources:
+                        sources.append(operands[side][0])
+                mask = [operands[side][1] + lanes * sources.index(operands[side][0])
+                        for operands, _ in current]
+                mask += [0] * (lanes - len(mask))
+                shuffles.append(((sources[0], sources[1] if len(sources) > 1 else None), mask))
+            outputs.append((tuple(shuffles), [name for _, name in current]))
+            current.clear()
+
+        for operands, name in pairs:
+            trial = current + [(operands, name)]
+            if len(trial) > lanes or any(len({o[side][0] for o, _ in trial}) > 2
+                                         for side in (0, 1)):
+                flush()
+                trial = [(operands, name)]
+            current[:] = trial
+        flush()
+        where = {name: (v, lane) for v, (_, names) in enumerate(outputs)
+                 for lane, name in enumerate(names)}
+        levels.append([shuffles for shuffles, _ in outputs])
+        width = half
+    cells = _GROUP_CELLS
+    index = np.empty(nbins * cells * channels, dtype=np.int64)
+    for (b, cell, c), _ in where:
+        v, lane = where[(b, cell, c), 0]
+        index[(b * cells + cell) * channels + c] = v * lanes + lane
+    size = (max(where.values())[0] + 1) * lanes
+    return _ReductionPlan(levels, index, size)
+
+
+def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,
+                 mask_then_add=_MASK_THEN_ADD):
     """An intrinsic ``block(flat, height, row_bytes, y0, x0, scratch)``.
 
     Adds up, for the _GROUP_CELLS cells whose elements start at flat-row offset
     ``x0`` in image rows ``y0 .. y0 + ppc_y - 1``, the gradient magnitude per
-    (bin, cell, channel) and stores the sums to
-    ``scratch[(b * _GROUP_CELLS + cell) * channels + c]``.  ``first``: the group
+    (bin, cell, channel) and stores the means (sums / (ppc_y * ppc_x)) to
+    ``scratch[plan.index[(b * _GROUP_CELLS + cell) * channels + c]]`` of the
+    ``_reduction_plan(lanes, channels, ppc_x, nbins)``.  ``first``: the group
     starts at the row's first pixel (gx = 0 there, nothing read before it);
     ``last``: it ends with the row's last pixel.  Otherwise the block reads
     ``channels`` bytes either side of the group.
     """
     group = _GROUP_CELLS * ppc_x * channels
-    assert group % _LANES == 0 and channels < _LANES
-    pieces = group // _LANES
+    assert group % lanes == 0 and channels < lanes
+    assert (ppc_y * ppc_x) & (ppc_y * ppc_x - 1) == 0, "the cell mean must scale exactly"
+    pieces = group // lanes
     thresholds = _fast_thresholds(nbins)
-    outputs = _GROUP_CELLS * channels
+    plan = _reduction_plan(lanes, channels, ppc_x, nbins)
 
     def codegen(context, builder, signature, args):
         i8, i32, i64, f32 = ir.IntType(8), ir.IntType(32), ir.IntType(64), ir.FloatType()
-        bytes_t = ir.VectorType(i8, _LANES)
-        ints_t = ir.VectorType(i32, _LANES)
-        floats_t = ir.VectorType(f32, _LANES)
+        bytes_t = ir.VectorType(i8, lanes)
+        ints_t = ir.VectorType(i32, lanes)
+        floats_t = ir.VectorType(f32, lanes)
         mask_t = lambda n: ir.VectorType(i32, n)  # noqa: E731
         data = context.make_array(signature.args[0])(context, builder, args[0]).data
         scratch = context.make_array(signature.args[5])(context, builder, args[5]).data
         height, row_bytes, y0, x0 = [context.cast(builder, v, t, types.int64)
                                      for v, t in zip(args[1:5], signature.args[1:5])]
         sqrt = cgutils.get_or_insert_function(
-            builder.module, ir.FunctionType(floats_t, [floats_t]), "llvm.sqrt.v16f32")
+            builder.module, ir.FunctionType(floats_t, [floats_t]), f"llvm.sqrt.v{lanes}f32")
 
         def splat(value, vtype=ints_t):
             return ir.Constant(vtype, [value] * vtype.count)
@@ -599,10 +699,20 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
         def widen(v):
             return builder.zext(v, ints_t)
 
+        def masked_add(past, total, value):
+            # Both forms give the same sums: totals are never -0.0, so adding
+            # +0.0 leaves them unchanged.  AVX-512 has a masked add (one
+            # instruction); elsewhere LLVM would make the select of sums a
+            # blend (two or three uops on Intel), while the select of the
+            # value against zero is one AND.
+            if mask_then_add:
+                return builder.fadd(total, builder.select(past, value, zero_f))
+            return builder.select(past, builder.fadd(total, value), total)
+
         fma = cgutils.get_or_insert_function(
-            builder.module, ir.FunctionType(floats_t, [floats_t] * 3), "llvm.fma.v16f32")
+            builder.module, ir.FunctionType(floats_t, [floats_t] * 3), f"llvm.fma.v{lanes}f32")
         fabs = cgutils.get_or_insert_function(
-            builder.module, ir.FunctionType(floats_t, [floats_t]), "llvm.fabs.v16f32")
+            builder.module, ir.FunctionType(floats_t, [floats_t]), f"llvm.fabs.v{lanes}f32")
         zero64, one = ir.Constant(i64, 0), ir.Constant(i64, 1)
         last_row = builder.sub(height, one)
         zero_i = splat(0)
@@ -632,26 +742,26 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
             y = builder.add(y0, r)
             interior = builder.and_(builder.icmp_signed(">", y, zero64),
                                     builder.icmp_signed("<", y, last_row))
-            shift = ir.Constant(i64, piece * _LANES)
+            shift = ir.Constant(i64, piece * lanes)
             base = builder.add(builder.add(builder.mul(y, row_bytes), x0), shift)
             up = builder.sub(base, builder.select(interior, row_bytes, zero64))
             down = builder.add(base, builder.select(interior, row_bytes, zero64))
             here = load(base) if head or tail else None
             if head:
                 left = builder.shuffle_vector(here, undef_b, ir.Constant(
-                    mask_t(_LANES), [0] * channels + list(range(_LANES - channels))))
+                    mask_t(lanes), [0] * channels + list(range(lanes - channels))))
             else:
                 left = load(builder.sub(base, c_off))
             if tail:
                 right = builder.shuffle_vector(here, undef_b, ir.Constant(
-                    mask_t(_LANES), list(range(channels, _LANES)) + [_LANES - 1] * channels))
+                    mask_t(lanes), list(range(channels, lanes)) + [lanes - 1] * channels))
             else:
                 right = load(builder.add(base, c_off))
             gx = builder.sub(widen(right), widen(left))
             if head or tail:
-                keep = [not ((head and j < channels) or (tail and j >= _LANES - channels))
-                        for j in range(_LANES)]
-                gx = builder.select(ir.Constant(ir.VectorType(ir.IntType(1), _LANES),
+                keep = [not ((head and j < channels) or (tail and j >= lanes - channels))
+                        for j in range(lanes)]
+                gx = builder.select(ir.Constant(ir.VectorType(ir.IntType(1), lanes),
                                                 [int(k) for k in keep]), gx, zero_i)
             gy = builder.sub(widen(load(down)), widen(load(up)))
             fx = builder.sitofp(gx, floats_t)
@@ -673,11 +783,8 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
             obtuse_sums = [builder.fadd(phis[middle + 1], obtuse_mag)]
             for count, t in enumerate(thresholds, 1):
                 past = builder.fcmp_ordered(">=", ay, builder.fmul(ax, splat(t, floats_t)))
-                acute.append(builder.select(past, builder.fadd(phis[count], acute_mag),
-                                            phis[count]))
-                obtuse_phi = phis[middle + 1 + count]
-                obtuse_sums.append(builder.select(past, builder.fadd(obtuse_phi, obtuse_mag),
-                                                  obtuse_phi))
+                acute.append(masked_add(past, phis[count], acute_mag))
+                obtuse_sums.append(masked_add(past, phis[middle + 1 + count], obtuse_mag))
             acc = acute + obtuse_sums
             r_next = builder.add(r, one)
             r.add_incoming(r_next, builder.block)
@@ -688,51 +795,37 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last):
             for total, value in zip(sums, acc):
                 total.append(value)
 
-        # Lane (cell, pixel, channel) of a group vector is
-        # (cell * ppc_x + pixel) * channels + channel.
-        def concat(vectors):
-            while len(vectors) > 1:
-                n = vectors[0].type.count
-                pairs = []
-                for i in range(0, len(vectors), 2):
-                    a = vectors[i]
-                    b = vectors[i + 1] if i + 1 < len(vectors) else a
-                    pairs.append(builder.shuffle_vector(a, b, ir.Constant(mask_t(2 * n),
-                                                                          list(range(2 * n)))))
-                vectors = pairs
-            return vectors[0]
-
-        reduced = []
-        for pieces_of_sum in sums:
-            v = concat(pieces_of_sum)
-            width = ppc_x
-            while width > 1:
-                half = (width + 1) // 2
-                zeros = ir.Constant(v.type, [0.0] * v.type.count)
-                lanes_a, lanes_b = [], []
-                for cell in range(_GROUP_CELLS):
-                    for p in range(half):
-                        for c in range(channels):
-                            lanes_a.append((cell * width + p) * channels + c)
-                            lanes_b.append((cell * width + p + half) * channels + c
-                                           if p + half < width else v.type.count)
-                a = builder.shuffle_vector(v, zeros, ir.Constant(mask_t(len(lanes_a)), lanes_a))
-                b = builder.shuffle_vector(v, zeros, ir.Constant(mask_t(len(lanes_b)), lanes_b))
-                v = builder.fadd(a, b)
-                width = half
-            reduced.append(v)
-        # Bin k < middle holds the acute pixels past threshold k but not k + 1;
-        # bin nbins - 1 - k the obtuse ones; the middle bin both sides past the
-        # last threshold.  Float sums are monotone in their terms, so these
-        # differences are never negative, and exactly 0 for empty bins.
-        acute, obtuse_sums = reduced[:middle + 1], reduced[middle + 1:]
+        # Per lane, bin k < middle holds the acute pixels past threshold k but
+        # not k + 1, bin nbins - 1 - k the obtuse ones, the middle bin both
+        # sides past the last threshold.  Float sums are monotone in their
+        # terms, so these differences are never negative, and exactly 0 for
+        # empty bins.
+        middle_bin = [builder.fadd(a, o) for a, o in zip(sums[middle], sums[2 * middle + 1])]
+        bins = [None] * nbins
         for k in range(middle):
-            store_vector(builder, builder.fsub(acute[k], acute[k + 1]), scratch,
-                         ir.Constant(i64, k * outputs), align=4)
-            store_vector(builder, builder.fsub(obtuse_sums[k], obtuse_sums[k + 1]), scratch,
-                         ir.Constant(i64, (nbins - 1 - k) * outputs), align=4)
-        store_vector(builder, builder.fadd(acute[middle], obtuse_sums[middle]), scratch,
-                     ir.Constant(i64, middle * outputs), align=4)
+            bins[k] = [builder.fsub(a, b) for a, b in zip(sums[k], sums[k + 1])]
+            bins[nbins - 1 - k] = [builder.fsub(a, b) for a, b in
+                                   zip(sums[middle + 1 + k], sums[middle + 2 + k])]
+        bins[middle] = middle_bin
+        vectors = [piece for pieces_of_bin in bins for piece in pieces_of_bin]
+        # Add each (bin, cell, channel)'s pixels: a planned tree of two
+        # shuffles and an add per output vector, each halving the pixels.
+        for level in plan.levels:
+            following = []
+            for left, right in level:
+                operands = []
+                for (first_source, second_source), mask in (left, right):
+                    a = vectors[first_source]
+                    b = vectors[second_source] if second_source is not None else a
+                    operands.append(builder.shuffle_vector(a, b, ir.Constant(mask_t(lanes), mask)))
+                following.append(builder.fadd(*operands))
+            vectors = following
+        # The cell mean: 1 / (ppc_y * ppc_x) is a power of two, so scaling
+        # here rounds exactly as scaling the stored sums would.
+        mean = splat(1.0 / (ppc_y * ppc_x), floats_t)
+        for v, vector in enumerate(vectors):
+            store_vector(builder, builder.fmul(vector, mean), scratch,
+                         ir.Constant(i64, v * lanes), align=4)
         return context.get_dummy_value()
 
     def block(typingctx, flat, height, row_bytes, y0, x0, scratch):
@@ -751,6 +844,10 @@ _block1 = _group_block(1, 8, 8, 9, False, False)
 _block1_f = _group_block(1, 8, 8, 9, True, False)
 _block1_l = _group_block(1, 8, 8, 9, False, True)
 _block1_fl = _group_block(1, 8, 8, 9, True, True)
+_SLOTS3 = _reduction_plan(_LANES, 3, 8, 9).index
+_SLOTS1 = _reduction_plan(_LANES, 1, 8, 9).index
+_SCRATCH3 = _reduction_plan(_LANES, 3, 8, 9).size
+_SCRATCH1 = _reduction_plan(_LANES, 1, 8, 9).size
 
 
 @njit(cache=True)
@@ -792,14 +889,22 @@ def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out):
     group = _GROUP_CELLS * ppc_x * channels
     groups = ncx // _GROUP_CELLS
     outputs = _GROUP_CELLS * channels
-    scratch = np.empty(nbins * outputs, dtype=np.float32)
+    # Where the block stores each (bin, cell, channel) mean.
+    slot = _SLOTS3 if channels == 3 else _SLOTS1
+    scratch = np.empty(_SCRATCH3 if channels == 3 else _SCRATCH1, dtype=np.float32)
     rest = ncx - groups * _GROUP_CELLS
     acc = np.empty(max(rest, 1) * channels * (nbins + 1), dtype=np.float32)
     scale = np.float32(1.0 / (ppc_y * ppc_x))
     c64 = uint64(channels)
+    phase_step, per_phase = layout[4], layout[5]
+    position_stride, channel_stride, bin_stride = layout[1], layout[2], layout[3]
     for cell_row in range(first, stop):
         y0 = cell_row * ppc_y
         row_base = uint64(cell_row) * layout[0]
+        # Cell column cx sits at position (cx % step) * K + cx // step: kept
+        # as two counters, not divided per cell.
+        phase = uint64(0)
+        column = uint64(0)
         for g in range(groups):
             x0 = g * group
             head = x0 == 0
@@ -823,13 +928,16 @@ def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out):
                 else:
                     _block1(flat, height, row_bytes, y0, x0, scratch)
             for cell in range(uint64(_GROUP_CELLS)):
-                cx = uint64(g * _GROUP_CELLS) + cell
-                position = (cx % layout[4]) * layout[5] + cx // layout[4]
+                position = phase * per_phase + column
+                phase += uint64(1)
+                if phase == phase_step:
+                    phase = uint64(0)
+                    column += uint64(1)
                 for c in range(c64):
-                    dest = row_base + position * layout[1] + c * layout[2]
+                    dest = row_base + position * position_stride + c * channel_stride
                     src = cell * c64 + c
                     for b in range(uint64(nbins)):
-                        out[dest + b * layout[3]] = scratch[b * uint64(outputs) + src] * scale
+                        out[dest + b * bin_stride] = scratch[slot[b * uint64(outputs) + src]]
         if rest > 0:
             cx0 = groups * _GROUP_CELLS
             _scalar_cells(flat, height, row_bytes, channels, y0, ppc_y, ppc_x, cx0, ncx, nbins,

@@ -90,7 +90,7 @@ def _union(parent, label_a, label_b):
         parent[root_a] = root_b
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def label_components_kernel(mask, eight_connected):
     """Label connected components of a 2-D mask (jitted core, no validation).
 
@@ -125,7 +125,7 @@ def _parent_size(height, width):
     return height * ((width + 1) // 2) + 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _label_into(mask, eight_connected, labels, parent):
     """:func:`label_components_kernel` into given buffers; returns the count.
 
@@ -288,7 +288,7 @@ def _zero_unused(boxes):
             boxes[row, :] = 0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def component_boxes(labels, count):
     """Bounding boxes of labelled components.
 
@@ -319,7 +319,7 @@ def component_boxes(labels, count):
     return boxes
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def component_max(labels, count, values):
     """Maximum of ``values`` over each labelled component.
 
@@ -356,7 +356,7 @@ def component_max(labels, count, values):
     return maxima
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def component_core_boxes(labels, count, values, thresholds):
     """Bounding boxes of each component's core: its pixels with value >= a threshold.
 
@@ -392,7 +392,7 @@ def component_core_boxes(labels, count, values, thresholds):
     return boxes
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def split_component(heat, mask, levels, min_width, min_height, connectivity):
     """Split one heat blob into car-sized parts at the lowest level that separates it.
 
@@ -469,7 +469,7 @@ def _bits_overload(values):
     return None
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def constant_runs(bits):
     """Runs of identical adjacent rows and of identical adjacent columns.
 
@@ -525,7 +525,7 @@ def constant_runs(bits):
     return row_starts[:n_rows + 1], col_starts
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _car_sized_parts(values, mask, row_units, col_units, levels, min_width, min_height,
                      eight_connected):
     """The car-sized parts of a blob at the lowest level that gives two or more.
@@ -566,7 +566,7 @@ def _car_sized_parts(values, mask, row_units, col_units, levels, min_width, min_
     return np.zeros((0, 4), dtype=np.int32)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _splits(values, mask, row_units, col_units, levels, min_width, min_height,
             eight_connected):
     """Whether :func:`split_component` would split this blob, decided on its
@@ -599,7 +599,7 @@ def _samples(starts, first, last, index0, step):
     return cells[:n], units[:n + 1]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def split_levels(peak, threshold64, fractions):
     """Thresholds at which a blob is split, as ``heat_components`` computes them.
 
@@ -615,7 +615,7 @@ def split_levels(peak, threshold64, fractions):
     return levels
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def heat_blobs(heat, origin_x, origin_y, threshold, eight_connected, refine, core_fraction,
                split_size, probe_step, level_fractions):
     """Threshold, label and measure the blobs of a heat map in one pass.

@@ -45,7 +45,7 @@ __all__ = [
 _HSV_SHIFT = 12
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def saturation_mask(image, threshold):
     """Pixels whose HSV saturation exceeds a threshold.
 
@@ -91,7 +91,7 @@ def _popcount(word):
     return (word * uint64(0x0101010101010101)) >> uint64(56)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _pack_rows(mask, words):
     # Row-wise bitsets: bit (x & 63) of word (x >> 6) is pixel x of the row.
     height, width = mask.shape
@@ -103,7 +103,7 @@ def _pack_rows(mask, words):
     return packed
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _summed_area(mask):
     height, width = mask.shape
     table = np.zeros((height + 1, width + 1), dtype=np.int64)
@@ -115,7 +115,7 @@ def _summed_area(mask):
     return table
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _intersection(reference_bits, candidate_bits, oy, ox):
     # Set pixels shared by the reference and the candidate window at (oy, ox):
     # each candidate word is realigned to the reference's bit 0 by two shifts.
@@ -137,7 +137,7 @@ def _intersection(reference_bits, candidate_bits, oy, ox):
     return np.int64(total)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _scan(reference_bits, reference_shape, candidate_bits, table, y_span, x_span, step, centre,
           best):
     # Improve best = [iou, y, x, squared distance to centre] over a grid of offsets.
@@ -158,7 +158,7 @@ def _scan(reference_bits, reference_shape, candidate_bits, table, y_span, x_span
                 best[3] = distance
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def mask_overlap_search(reference, candidate, centre, radius, coarse_step):
     """Best placement of a reference mask inside a candidate mask, by IoU.
 
@@ -220,7 +220,7 @@ def mask_overlap_search(reference, candidate, centre, radius, coarse_step):
     return int(best[1]), int(best[2]), max(best[0], 0.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def grey_thumbnail(image, factor):
     """Mean of the three channels over every ``factor x factor`` block.
 
@@ -259,7 +259,7 @@ def grey_thumbnail(image, factor):
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def sum_squared_difference(a, b):
     """Sum of squared differences of two equally shaped float32 arrays (float64 sum)."""
     flat_a = a.ravel()
