@@ -54,14 +54,15 @@ def _kernel_input(image, multichannel):
 
     uint8 stays uint8 (exact integer-gradient paths); float32 and float64
     stay as they are.  bool becomes uint8 (0 and 1 give the same gradients as
-    scikit-image's 0.0 and 1.0).  float16 is widened to float32 and other
-    integer types to float64, as scikit-image does.
+    scikit-image's 0.0 and 1.0).  float16 is widened to float32 and every
+    other dtype (integers, objects holding numbers) converted to float64, as
+    scikit-image does (and with its ``ValueError`` for strings).
     """
     if image.dtype == np.bool_:
         image = image.astype(np.uint8)
     elif image.dtype == np.float16:
         image = image.astype(np.float32)
-    elif image.dtype.kind in "iu" and image.dtype != np.uint8:
+    elif image.dtype not in (np.uint8, np.float32, np.float64):
         image = image.astype(np.float64)
     if not multichannel:
         image = image[:, :, None]
