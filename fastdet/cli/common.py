@@ -43,13 +43,13 @@ def compile_notice(enabled=True, stream=None):
     block ends long before :data:`COMPILE_NOTICE_AFTER` and nothing is
     printed; with an empty one the user learns why the first frame waits.
     """
-    from ..kernels.cache import TYPICAL_COMPILE_SECONDS, kernel_cache_dir
+    from ..kernels.cache import TYPICAL_COMPILE_SECONDS, active_cache_dir
 
     stream = stream or sys.stderr
 
     def announce():
         print(f"fastdet: compiling kernels, once per machine: ~{TYPICAL_COMPILE_SECONDS} s "
-              f"(cached in {kernel_cache_dir()})", file=stream, flush=True)
+              f"(cached in {active_cache_dir()})", file=stream, flush=True)
 
     timer = threading.Timer(COMPILE_NOTICE_AFTER, announce)
     timer.daemon = True

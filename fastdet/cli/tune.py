@@ -24,9 +24,11 @@ def cmd_tune(args):
     from ..detector.config import load_config
     from ..detector.model import load_model
     from ..evaluation.annotations import load_annotations
-    from ..files.atomic import atomic_path
+    from ..files.atomic import atomic_path, refuse_overwriting_inputs
     from ..training.tune import as_toml, format_results, tune
 
+    refuse_overwriting_inputs(args.out, [args.annotations, args.config, args.model,
+                                         *args.sources])
     annotations = load_annotations(args.annotations)
     results = tune(load_model(args.model), args.sources, annotations, load_config(args.config),
                    log=lambda line: print(line, file=sys.stderr))

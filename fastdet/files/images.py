@@ -42,8 +42,12 @@ def write_image(path, image):
     Raises
     ------
     InputError
-        When OpenCV cannot encode the suffix's format.
+        When OpenCV cannot encode the suffix's format, or the file cannot be
+        written (a full disk, a read-only folder).
     """
+    if not cv2.haveImageWriter(str(path)):
+        raise InputError(f"cannot write image {path}: OpenCV has no writer for "
+                         f"{Path(path).suffix or 'a name without a suffix'!r}")
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), np.ascontiguousarray(image)):
-            raise InputError(f"cannot write image {path} (unsupported extension?)")
+            raise InputError(f"cannot write image {path}: the encoder failed (disk full?)")

@@ -26,6 +26,7 @@ import numpy as np
 
 from ..detector.features import WINDOW
 from ..errors import InputError
+from ..files.atomic import is_temporary
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg"}
 CLASS_FOLDERS = {"vehicles": 1, "non-vehicles": 0}
@@ -69,7 +70,9 @@ def list_dataset(data_dir, extra_negatives=()):
     for folder, label, prefix in sources:
         if not folder.is_dir():
             raise InputError(f"training data folder not found: {folder}")
-        found = sorted((p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES),
+        # Temporary files of outputs being written (or left by a killed run) are no crops.
+        found = sorted((p for p in folder.rglob("*")
+                        if p.suffix.lower() in IMAGE_SUFFIXES and not is_temporary(p)),
                        key=_natural_key)
         if not found:
             raise InputError(f"no PNG/JPG images under {folder}")

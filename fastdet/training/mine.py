@@ -22,7 +22,7 @@ import numpy as np
 from ..detector.features import WINDOW
 from ..detector.geometry import iou_matrix
 from ..errors import InputError
-from ..files.atomic import atomic_path
+from ..files.atomic import atomic_path, output_in_folder, refuse_overwriting_inputs
 
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".m4v"}
 
@@ -142,7 +142,8 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
                 x1, y1, x2, y2 = (int(v) for v in box)
                 crop = cv2.resize(frame[y1:y2, x1:x2], (WINDOW, WINDOW),
                                   interpolation=cv2.INTER_AREA)
-                path = out_dir / f"{Path(source).stem}_{key}_{n:03d}.png"
+                path = output_in_folder(out_dir, f"{Path(source).stem}_{key}_{n:03d}.png")
+                refuse_overwriting_inputs(path, sources)
                 with atomic_path(path) as tmp:
                     if not cv2.imwrite(str(tmp), crop):
                         raise InputError(f"cannot write {path}")
