@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import threading
 
@@ -23,6 +24,23 @@ def make_detector(args):
 
     return Detector(model=args.model, config=load_config(args.config),
                     threads=getattr(args, "threads", None))
+
+
+def message_stream(*outputs):
+    """Where a command prints its messages: stderr when one of ``outputs`` is standard output.
+
+    ``--out -`` (or ``/dev/stdout``) puts the output itself on stdout, where
+    the messages would corrupt it.
+    """
+    for output in outputs:
+        if output is None:
+            continue
+        if str(output) == "-":
+            return sys.stderr
+        with contextlib.suppress(OSError, ValueError):
+            if os.path.samestat(os.stat(output), os.fstat(sys.stdout.fileno())):
+                return sys.stderr
+    return sys.stdout
 
 
 def log_to_stderr(line):

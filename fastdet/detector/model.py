@@ -190,5 +190,8 @@ def _parse(handle, name):
     if settings is not None and settings != _settings_digest(bias, options.to_dict()):
         raise ModelError(f"{name} failed its checksum: the bias or feature options were modified")
     report = metadata.get("report", {})
-    return Model(weights=weights, bias=bias, options=options,
-                 report=report if isinstance(report, dict) else {})
+    try:
+        return Model(weights=weights, bias=bias, options=options,
+                     report=report if isinstance(report, dict) else {})
+    except ModelError as exc:  # weights of the wrong length or not finite: name the file
+        raise ModelError(f"{name}: {exc}") from None

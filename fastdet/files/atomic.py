@@ -27,6 +27,8 @@ skips them).  A process killed outright (``SIGKILL``) cannot remove its
 temporary file; the next fastdet process writing into the same folder
 deletes every such file whose process is gone.
 
+:func:`check_writable` checks an output before long work.
+
 Names built from *input* names (``fastdet detect --out-dir``, ``fastdet
 mine --out``) go through :func:`output_in_folder`, which never leaves the
 folder: no ``..``, no separators, and no symbolic link is followed there.
@@ -294,6 +296,22 @@ class StagedFile:
         else:
             self.discard()
         return False
+
+
+def check_writable(path):
+    """Raise :class:`InputError` now if ``path`` clearly cannot be written later.
+
+    For commands that work long before they write (training, tuning): a
+    folder given as a file, a missing or read-only folder fail at once.  A
+    disk that fills up meanwhile still fails at the write, cleanly.
+    """
+    if path is None or _in_place(Path(path)):
+        return
+    folder = _final(Path(path)).parent
+    if not folder.is_dir():
+        raise InputError(f"cannot write {path}: folder {folder} not found")
+    if not os.access(folder, os.W_OK):
+        raise InputError(f"cannot write {path}: folder {folder} is not writable")
 
 
 def output_in_folder(folder, name):
