@@ -63,3 +63,31 @@ def read_only(path):
     finally:
         for name, mode in modes.items():
             os.chmod(name, mode)
+
+
+#: (major, minor) of the Linux character devices the tests stand in for.
+DEVICES = {"null": (1, 3), "full": (1, 7)}
+
+
+def private_device(folder, name):
+    """A private copy of ``/dev/<name>`` (a device node in ``folder``), or ``None`` when not root.
+
+    Tests write to these, never to ``/dev`` itself: code that wrongly
+    renames a file over its output would otherwise replace the machine's
+    ``/dev/null`` or ``/dev/full`` for every process on it.
+    """
+    path = folder / name
+    if not is_root():
+        return None
+    try:
+        os.mknod(path, 0o666 | stat.S_IFCHR, os.makedev(*DEVICES[name]))
+    except OSError:
+        return None
+    return path
+
+
+def private_stdout(folder):
+    """A private symbolic link to this process's standard output, like ``/dev/stdout``."""
+    path = folder / "stdout"
+    path.symlink_to("/proc/self/fd/1")
+    return path

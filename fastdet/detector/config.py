@@ -289,6 +289,8 @@ def _build(section_cls, values, section):
 def read_toml(path):
     """Parse a TOML file into a dict with a one-line error on failure."""
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{path} is a folder, not a config file")
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}")
     try:

@@ -133,6 +133,8 @@ def load_model(path=None):
         data = resources.files("fastdet").joinpath("data", DEFAULT_MODEL_NAME).read_bytes()
         return _parse(io.BytesIO(data), "the bundled default model")
     path = Path(path)
+    if path.is_dir():
+        raise ModelError(f"{path} is a folder, not a model file")
     if not path.is_file():
         raise ModelError(f"model file not found: {path}")
     with open(path, "rb") as handle:

@@ -45,6 +45,8 @@ def load_annotations(path):
         file is missing, is not JSON, or does not have the structure above.
     """
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path} is a folder, not an annotation file")
     if not path.is_file():
         raise InputError(f"annotation file not found: {path}")
     try:

@@ -23,7 +23,7 @@ from fastdet.files.atomic import (
     output_in_folder,
     refuse_overwriting_inputs,
 )
-from filesystems import read_only, tiny_filesystem
+from filesystems import private_device, private_stdout, read_only, tiny_filesystem
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -161,28 +161,43 @@ def test_fifo_is_written_through(tmp_path):
     assert received[-1] == "whole\n" and stat.S_ISFIFO(os.stat(fifo).st_mode)
 
 
-@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full on this platform")
-def test_dev_full_says_disk_full_and_stays_a_device():
-    with pytest.raises(InputError, match=r"^cannot write /dev/full: No space left on device$"):
-        with atomic_path("/dev/full") as tmp:
+@pytest.fixture
+def device(tmp_path):
+    """A private device node standing in for /dev/<name> (tests never write to /dev itself)."""
+    def make(name):
+        path = private_device(tmp_path, name)
+        if path is None:
+            pytest.skip("needs root to make a device node")
+        return path
+    return make
+
+
+def test_full_device_says_disk_full_and_stays_a_device(device):
+    full = device("full")
+    message = rf"^cannot write {full}: No space left on device$"
+    with pytest.raises(InputError, match=message):
+        with atomic_path(full) as tmp:
             tmp.write_bytes(b"x" * 10000)
-    with pytest.raises(InputError, match=r"^cannot write /dev/full: No space left on device$"):
-        with LineFile("/dev/full") as out:
+    with pytest.raises(InputError, match=message):
+        with LineFile(full) as out:
             out.write("x" * 100000)
-    assert stat.S_ISCHR(os.stat("/dev/full").st_mode)
+    assert stat.S_ISCHR(os.stat(full).st_mode)
 
 
-def test_dev_null_and_dev_stdout_stay_devices():
-    for device in ("/dev/null",):
-        with atomic_path(device) as tmp:
-            tmp.write_text("x")
-        with LineFile(device) as out:
-            out.write("x")
-        assert stat.S_ISCHR(os.stat(device).st_mode)
-    code = ("from fastdet.files.atomic import atomic_path\n"
-            "with atomic_path('/dev/stdout') as tmp: tmp.write_text('through\\n')\n")
-    result = run_python(code, subprocess.PIPE)
+def test_null_device_and_stdout_link_stay_what_they_are(device, tmp_path):
+    null = device("null")
+    with atomic_path(null) as tmp:
+        tmp.write_text("x")
+    with LineFile(null) as out:
+        out.write("x")
+    assert stat.S_ISCHR(os.stat(null).st_mode)
+    stdout = private_stdout(tmp_path)  # what /dev/stdout is: a link to /proc/self/fd/1
+    code = ("import sys\nfrom fastdet.files.atomic import atomic_path\n"
+            "with atomic_path(sys.argv[1]) as tmp: tmp.write_text('through\\n')\n")
+    result = subprocess.run([sys.executable, "-c", code, str(stdout)], cwd=ROOT,
+                            capture_output=True, text=True, timeout=120)
     assert result.returncode == 0 and result.stdout == "through\n", result.stderr
+    assert stdout.is_symlink() and os.readlink(stdout) == "/proc/self/fd/1"
 
 
 # -- failures: one line naming the file, nothing half-written, nothing left --------

@@ -42,7 +42,7 @@ import pytest
 from fastdet.cli.app import EXIT_ERROR, main
 from fastdet.detector.model import load_model
 from fastdet.files.atomic import is_temporary
-from filesystems import read_only, tiny_filesystem
+from filesystems import private_device, read_only, tiny_filesystem
 
 ROOT = Path(__file__).resolve().parents[2]
 FASTDET = [sys.executable, "-c",
@@ -117,6 +117,17 @@ class Inputs:
         (self.damaged_data / "vehicles" / "GTI_Far" / "image0007.png").write_bytes(rng.bytes(300))
         for group in ("vehicles", "non-vehicles"):
             (folder / "empty_data" / group).mkdir(parents=True)
+        # Private stand-ins for /dev/full and /dev/null: a bug that renames
+        # over its output must not replace the machine's own devices.
+        (folder / "dev").mkdir()
+        self.full = private_device(folder / "dev", "full")
+        self.null = private_device(folder / "dev", "null")
+
+    def device(self, name):
+        path = getattr(self, name)
+        if path is None:
+            pytest.skip("needs root to make a device node")
+        return path
 
     def file(self, name, data):
         path = self.dir / name
@@ -230,11 +241,10 @@ def bad_file_rows(verb, kind, argv):
     ext = {"image": ".jpg", "model": ".npz", "config": ".toml", "annotations": ".json"}[kind]
     problems = {
         "image": ("not found", "empty", "as an image", "as an image|damaged", "folder"),
-        "model": ("not found", "not a readable", "not a readable", "not a readable",
-                  "not found"),
-        "config": ("not found", None, "not valid TOML", "not valid TOML", "not found"),
+        "model": ("not found", "not a readable", "not a readable", "not a readable", "folder"),
+        "config": ("not found", None, "not valid TOML", "not valid TOML", "folder"),
         "annotations": ("not found", "not valid JSON", "not valid JSON", "not valid JSON",
-                        "not found"),
+                        "folder"),
     }[kind]
     rows = []
     for (fault, name), problem in zip((("missing", "missing"), ("empty", "empty"),
@@ -356,10 +366,11 @@ ROWS += [
     train_to(lambda i, o: o / "disk" / "previous", fault="--out on a full disk",
              names=lambda i, o: o / "disk" / "previous", problem="No space left",
              guarded=lambda i, o: [o / "disk" / "previous"], setup=lambda i, o: full_disk(o)),
-    train_to(lambda i, o: "/dev/full", fault="--out /dev/full", names=lambda i, o: "/dev/full",
-             problem="No space left"),
-    train_to(lambda i, o: "/dev/null", fault="--out /dev/null", code=0,
-             check=lambda i, o, out: stat.S_ISCHR(os.stat("/dev/null").st_mode)),
+    train_to(lambda i, o: i.device("full"), fault="--out a full device (/dev/full)",
+             names=lambda i, o: i.full, problem="No space left",
+             check=lambda i, o, out: stat.S_ISCHR(os.stat(i.full).st_mode)),
+    train_to(lambda i, o: i.device("null"), fault="--out a null device (/dev/null)", code=0,
+             check=lambda i, o, out: stat.S_ISCHR(os.stat(i.null).st_mode)),
     train_to(lambda i, o: "-", fault="--out - (stdout)", code=0, subprocess=True,
              messages="^(feature length|accuracy: |model written to -)",
              check=lambda i, o, out: loads_model(out).report["crops"] == 60),
@@ -436,10 +447,10 @@ ROWS += [
         names=lambda i, o: o / "disk" / "previous", problem="No space left",
         guarded=lambda i, o: [o / "disk" / "previous"],
         setup=lambda i, o: full_disk(o, 16 * 1024 - 10)),
-    Row("tune", "--out /dev/full",
+    Row("tune", "--out a full device (/dev/full)",
         lambda i, o: ["tune", s(i.image), "--annotations", s(i.annotations), "--out",
-                      "/dev/full", "--top", "1"],
-        names=lambda i, o: "/dev/full", problem="No space left"),
+                      s(i.device("full")), "--top", "1"],
+        names=lambda i, o: i.full, problem="No space left"),
     Row("tune", "--out - (stdout)",
         lambda i, o: ["tune", s(i.image), "--annotations", s(i.annotations), "--out", "-",
                       "--top", "1"], code=0, subprocess=True,
@@ -471,9 +482,9 @@ ROWS += [
     Row("viz", "hog: --out with an unknown suffix",
         lambda i, o: ["viz", "hog", s(i.image), "--out", s(o / "h.xyz")],
         names=lambda i, o: o / "h.xyz", problem="must end in"),
-    Row("viz", "hog: --out /dev/full (no suffix)",
-        lambda i, o: ["viz", "hog", s(i.image), "--out", "/dev/full"],
-        names=lambda i, o: "/dev/full", problem="must end in"),
+    Row("viz", "hog: --out a device (no suffix)",
+        lambda i, o: ["viz", "hog", s(i.image), "--out", s(i.device("full"))],
+        names=lambda i, o: i.full, problem="must end in"),
     Row("viz", "samples: data folder missing",
         lambda i, o: ["viz", "samples", s(i / "missing"), "--out", s(o / "s.png")],
         names=lambda i, o: i / "missing", problem="not found"),
