@@ -304,4 +304,9 @@ def load_config(path=None, extra_sections=("track",)):
     """The detector configuration: defaults, overridden by a TOML file if given."""
     if path is None:
         return DetectorConfig()
-    return DetectorConfig.from_dict(read_toml(path), extra_sections)
+    try:
+        return DetectorConfig.from_dict(read_toml(path), extra_sections)
+    except ConfigError as exc:
+        if str(path) in str(exc):
+            raise
+        raise ConfigError(f"{path}: {exc}") from None

@@ -126,3 +126,11 @@ def test_searched_frames_through_any_view(detector, frame):
 def test_non_arrays_raise_input_error(detector, value):
     with pytest.raises(InputError):
         detector(value)
+
+
+@pytest.mark.parametrize("shape", [(0, 0), (0, 5), (5, 0, 4), (0, 0, 1), (0, 3, 3)])
+def test_frames_without_pixels_have_no_boxes(detector, shape):
+    # Found by the fuzzer: OpenCV refused to convert them, and planning divided by zero.
+    frame = np.zeros(shape, np.uint8)
+    assert len(detector(frame)) == 0
+    assert detector.heatmap(frame).shape == shape[:2]
