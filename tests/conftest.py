@@ -21,8 +21,9 @@ def data_dir():
 
 
 # -- Hypothesis profiles -----------------------------------------------------
-# "ci" (the default) keeps every fuzz target to a few dozen examples so the
-# suite stays fast; "long" is for fuzzing sessions:
+# "ci" (the default) keeps every fuzz target to a few dozen examples, the
+# same ones every run (derandomized: a CI failure reproduces); "long"
+# explores, with fresh random examples each run:
 #     python -m pytest tests/fuzz --hypothesis-profile=long
 # (the option of Hypothesis's pytest plugin, which loads the profile after
 # this file has chosen the default).  Deadlines are off: the first example of
@@ -30,7 +31,9 @@ def data_dir():
 from hypothesis import HealthCheck, settings  # noqa: E402
 
 settings.register_profile("ci", max_examples=30, deadline=None, print_blob=True,
+                          derandomize=True,
                           suppress_health_check=[HealthCheck.too_slow,
                                                  HealthCheck.data_too_large])
-settings.register_profile("long", parent=settings.get_profile("ci"), max_examples=3000)
+settings.register_profile("long", parent=settings.get_profile("ci"), max_examples=3000,
+                          derandomize=False)
 settings.load_profile("ci")
