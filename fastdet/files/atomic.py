@@ -245,10 +245,11 @@ class StagedFile:
 
     @contextlib.contextmanager
     def writing(self):
-        """Wrap a subclass's writes: an ``OSError`` (a full disk) becomes an InputError naming the file.
+        """Wrap a subclass's writes: an ``OSError`` (a full disk) becomes an InputError.
 
-        An exception leaving a ``with`` block of the file itself may come from
-        anywhere (reading the input, say), so only the writes are wrapped.
+        The error names the file.  An exception leaving a ``with`` block of
+        the file itself may come from anywhere (reading the input, say), so
+        only the writes are wrapped.
         """
         try:
             yield
@@ -331,7 +332,8 @@ def output_in_folder(folder, name):
         a folder.
     """
     folder = Path(folder)
-    if name in ("", ".", "..") or "/" in name or (os.sep != "/" and os.sep in name) or "\0" in name:
+    separators = {"/", os.sep, "\0"}
+    if name in ("", ".", "..") or any(mark in name for mark in separators):
         raise InputError(f"cannot name an output {name!r} in {folder}")
     path = folder / name
     if os.path.islink(path):
