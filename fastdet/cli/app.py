@@ -1,13 +1,24 @@
 """The ``fastdet`` command: the parser of every verb, and error handling.
 
-Every user-facing failure (a :class:`~fastdet.errors.FastdetError` or an
-``OSError``) becomes one line ``fastdet: error: ...`` on stderr and exit code 2;
-Ctrl-C exits with 130.
+Exit codes (the bad-input matrix, ``docs/reliability.md``, tests them):
+
+* 0: done;
+* 2: a user-facing failure (a :class:`~fastdet.errors.FastdetError` or an
+  ``OSError``: bad input, an unwritable output, a full disk), reported as one
+  line ``fastdet: error: ...`` on stderr; also argparse's usage errors;
+* 70: an internal error (a bug), reported as one line too;
+* 130: interrupted (Ctrl-C).
+
+``--debug`` lets the exception through with its traceback instead;
+``--verbose`` also logs what fastdet decides on the way (the kernel cache,
+damaged cache entries, kernels loaded and compiled).  Both are accepted
+before or after the verb.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 
 from ..errors import FastdetError
@@ -21,33 +32,85 @@ from .tune import add_tune_parser
 from .viz import add_viz_parser
 
 EXIT_ERROR = 2
+EXIT_INTERNAL = 70
 EXIT_INTERRUPTED = 130
+
+
+def _add_global_options(parser, default):
+    parser.add_argument("--verbose", "-v", action="store_true", default=default,
+                        help="also say where kernels are cached and what was loaded or compiled")
+    parser.add_argument("--debug", action="store_true", default=default,
+                        help="show the traceback of an error instead of one line")
+
+
+def _add_to_every_verb(parser):
+    """``--verbose`` and ``--debug`` after any verb too (without overriding them when absent)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for verb in action.choices.values():
+                _add_global_options(verb, argparse.SUPPRESS)
+                _add_to_every_verb(verb)
 
 
 def build_parser():
     """The argument parser of the ``fastdet`` command."""
     parser = argparse.ArgumentParser(
         prog="fastdet", description="Fast classical vehicle detection (HOG + linear SVM).")
+    _add_global_options(parser, False)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add_verb in (add_detect_parser, add_eval_parser, add_train_parser, add_mine_parser,
                      add_tune_parser, add_run_parser, add_viz_parser, add_bench_parser):
         add_verb(sub)
+    _add_to_every_verb(parser)
     return parser
+
+
+def _one_line(exc):
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _start_verbose_log():
+    """Log fastdet's notes to stderr as ``fastdet: ...`` lines."""
+    from ..kernels import cache
+
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("fastdet: %(message)s"))
+    logger = logging.getLogger("fastdet")
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    logger.info(cache.describe())
+    return handler
 
 
 def main(argv=None):
     """Entry point of the ``fastdet`` console script; returns the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    handler = _start_verbose_log() if args.verbose else None
     try:
         return args.handler(args)
     except KeyboardInterrupt:
+        if args.debug:
+            raise
         print("fastdet: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     except (FastdetError, OSError) as exc:
-        message = " ".join(str(exc).split()) or type(exc).__name__
-        print(f"fastdet: error: {message}", file=sys.stderr)
+        if args.debug:
+            raise
+        print(f"fastdet: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_ERROR
+    except Exception as exc:  # noqa: BLE001 - a bug: still one line, the traceback on --debug
+        if args.debug:
+            raise
+        print(f"fastdet: internal error: {type(exc).__name__}: {_one_line(exc)} (a bug; "
+              "--debug shows where)", file=sys.stderr)
+        return EXIT_INTERNAL
+    finally:
+        if handler is not None:
+            from ..kernels import cache
+
+            logging.getLogger("fastdet").info(cache.summary())
+            logging.getLogger("fastdet").removeHandler(handler)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import threading
 
@@ -25,6 +26,23 @@ def make_detector(args):
                     threads=getattr(args, "threads", None))
 
 
+def message_stream(*outputs):
+    """Where a command prints its messages: stderr when one of ``outputs`` is standard output.
+
+    ``--out -`` (or ``/dev/stdout``) puts the output itself on stdout, where
+    the messages would corrupt it.
+    """
+    for output in outputs:
+        if output is None:
+            continue
+        if str(output) == "-":
+            return sys.stderr
+        with contextlib.suppress(OSError, ValueError):
+            if os.path.samestat(os.stat(output), os.fstat(sys.stdout.fileno())):
+                return sys.stderr
+    return sys.stdout
+
+
 def log_to_stderr(line):
     """Progress lines of long commands go to stderr, flushed at once."""
     print(line, file=sys.stderr, flush=True)
@@ -43,13 +61,13 @@ def compile_notice(enabled=True, stream=None):
     block ends long before :data:`COMPILE_NOTICE_AFTER` and nothing is
     printed; with an empty one the user learns why the first frame waits.
     """
-    from ..kernels.cache import TYPICAL_COMPILE_SECONDS, kernel_cache_dir
+    from ..kernels.cache import TYPICAL_COMPILE_SECONDS, active_cache_dir
 
     stream = stream or sys.stderr
 
     def announce():
         print(f"fastdet: compiling kernels, once per machine: ~{TYPICAL_COMPILE_SECONDS} s "
-              f"(cached in {kernel_cache_dir()})", file=stream, flush=True)
+              f"(cached in {active_cache_dir()})", file=stream, flush=True)
 
     timer = threading.Timer(COMPILE_NOTICE_AFTER, announce)
     timer.daemon = True

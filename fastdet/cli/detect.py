@@ -6,6 +6,8 @@ import json
 import time
 from pathlib import Path
 
+from ..errors import InputError
+from ..files.atomic import output_in_folder, refuse_overwriting_inputs
 from ..files.images import read_image, write_image
 from .common import add_model_options, compile_notice, make_detector
 
@@ -26,9 +28,7 @@ def cmd_detect(args):
     from ..viz.draw import draw_detections
 
     detector = make_detector(args)
-    out_dir = Path(args.out_dir) if args.out_dir else None
-    if out_dir is not None:
-        out_dir.mkdir(parents=True, exist_ok=True)
+    targets = _drawn_image_paths(args.images, args.out_dir) if args.out_dir else None
     for index, name in enumerate(args.images):
         image = read_image(name)
         if index == 0:
@@ -39,9 +39,24 @@ def cmd_detect(args):
         detections = detector(image)
         elapsed_ms = (time.perf_counter() - start) * 1e3
         record = {"image": str(name), "boxes": detections.to_list(), "ms": round(elapsed_ms, 2)}
-        if out_dir is not None:
-            target = out_dir / Path(name).name
-            write_image(target, draw_detections(image, detections))
-            record["output"] = str(target)
+        if targets is not None:
+            write_image(targets[index], draw_detections(image, detections))
+            record["output"] = str(targets[index])
         print(json.dumps(record), flush=True)
     return 0
+
+
+def _drawn_image_paths(images, out_dir):
+    """Each image's own name inside ``out_dir`` (created), checked before any work.
+
+    The names stay inside the folder whatever the inputs are called, and
+    none may be an input: ``--out-dir`` the images' own folder would replace them.
+    """
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"--out-dir {out_dir} is not a folder")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    targets = [output_in_folder(out_dir, Path(name).name) for name in images]
+    for target in targets:
+        refuse_overwriting_inputs(target, images)
+    return targets

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from ..detector.features import COLOR_CODES, FeatureOptions
 from ..errors import InputError
+from ..files.atomic import check_writable
 from ..kernels.blocks import NORM_CODES
-from .common import log_to_stderr
+from .common import log_to_stderr, message_stream
 
 #: LinearSVC regularisation when neither --C nor --cv is given.
 DEFAULT_C = 1e-3
@@ -66,6 +67,8 @@ def cmd_train(args):
         spatial_size=args.spatial_size, hist_bins=args.hist_bins, use_hog=not args.no_hog)
     if args.out is None:
         raise InputError("fastdet train needs --out MODEL.npz (or --compare)")
+    check_writable(args.out)
+    check_writable(args.report)
     if args.C:
         C = args.C[0] if len(args.C) == 1 and not args.cv else tuple(args.C)
     else:
@@ -76,16 +79,17 @@ def cmd_train(args):
         extra_negatives=args.extra_negatives or (), return_test_scores=True,
         log=log_to_stderr)
     model.save(args.out)
+    messages = message_stream(args.out, args.report)
     if args.report:
         from ..viz.training_figures import training_report_figure
         training_report_figure(model.report, test_scores, test_labels, args.report)
-        print(f"training report written to {args.report}")
+        print(f"training report written to {args.report}", file=messages)
     report = model.report
     print(f"feature length {report['feature_length']}  crops {report['crops']}  "
-          f"train time {report['total_seconds']:.1f} s")
+          f"train time {report['total_seconds']:.1f} s", file=messages)
     print(f"accuracy: random split {report['random_split']['accuracy']:.4f}  "
-          f"leak-free split {report['leak_free_split']['accuracy']:.4f}")
-    print(f"model written to {args.out}")
+          f"leak-free split {report['leak_free_split']['accuracy']:.4f}", file=messages)
+    print(f"model written to {args.out}", file=messages)
     return 0
 
 

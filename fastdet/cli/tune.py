@@ -24,15 +24,20 @@ def cmd_tune(args):
     from ..detector.config import load_config
     from ..detector.model import load_model
     from ..evaluation.annotations import load_annotations
-    from ..files.atomic import atomic_path
+    from ..files.atomic import atomic_path, check_writable, refuse_overwriting_inputs
     from ..training.tune import as_toml, format_results, tune
+    from .common import message_stream
 
+    refuse_overwriting_inputs(args.out, [args.annotations, args.config, args.model,
+                                         *args.sources])
+    check_writable(args.out)
     annotations = load_annotations(args.annotations)
     results = tune(load_model(args.model), args.sources, annotations, load_config(args.config),
                    log=lambda line: print(line, file=sys.stderr))
-    print(format_results(results, top=args.top))
+    messages = message_stream(args.out)
+    print(format_results(results, top=args.top), file=messages)
     if args.out:
         with atomic_path(args.out) as tmp:
             Path(tmp).write_text(as_toml(results[0]))
-        print(f"best thresholds written to {args.out}")
+        print(f"best thresholds written to {args.out}", file=messages)
     return 0

@@ -89,10 +89,18 @@ def _add_out_option(parser, default):
 
 
 def _output_path(args, default_name):
-    """``--out`` or the default name in the current folder, checked before any work."""
+    """``--out`` or the default name in the current folder, checked before any work.
+
+    The default name is built from an input's name: it stays in the current
+    folder; and no output may replace one of the command's inputs.
+    """
+    from ..files.atomic import output_in_folder, refuse_overwriting_inputs
     from ..viz.figure import check_output_path
 
-    return check_output_path(Path(args.out) if args.out else Path(default_name))
+    out = Path(args.out) if args.out else output_in_folder(Path("."), default_name)
+    refuse_overwriting_inputs(out, [getattr(args, name, None) for name in
+                                    ("image", "frame", "annotations", "model", "config")])
+    return check_output_path(out)
 
 
 def _report(path):

@@ -42,6 +42,17 @@ else:  # pragma: no cover - exercised on Python 3.10 only
 from ..errors import ConfigError
 
 
+def _is_number(value):
+    """A finite int or float (bools, which are ints, are not numbers here)."""
+    return (isinstance(value, (int, float)) and not isinstance(value, bool)
+            and math.isfinite(value))
+
+
+def _number(name, value):
+    if not _is_number(value):
+        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+
+
 @dataclass(frozen=True)
 class ScaleConfig:
     """One search scale.
@@ -65,13 +76,15 @@ class ScaleConfig:
     def __post_init__(self):
         object.__setattr__(self, "x", tuple(self.x))
         object.__setattr__(self, "y", tuple(self.y))
-        if not (isinstance(self.window, (int, float)) and self.window >= 8):
+        _number("search.scales.window", self.window)
+        if not self.window >= 8:
             raise ConfigError(f"search.scales.window must be a number >= 8, got {self.window!r}")
-        if not (isinstance(self.overlap, (int, float)) and 0 <= self.overlap < 1):
+        _number("search.scales.overlap", self.overlap)
+        if not 0 <= self.overlap < 1:
             raise ConfigError(f"search.scales.overlap must be in [0, 1), got {self.overlap!r}")
         for name in ("x", "y"):
             span = getattr(self, name)
-            if (len(span) != 2 or not all(isinstance(v, (int, float)) for v in span)
+            if (len(span) != 2 or not all(_is_number(v) for v in span)
                     or not span[0] < span[1]):
                 raise ConfigError(f"search.scales.{name} must be [start, stop] with start < stop, "
                                   f"got {list(span)!r}")
@@ -245,17 +258,17 @@ class DetectorConfig:
             raise ConfigError(f"unknown config section(s): {', '.join(unknown)}")
         built = {}
         for name, section_cls in sections.items():
-            values = dict(data.get(name, {}))
+            values = data.get(name, {})
+            if not isinstance(values, dict):
+                raise ConfigError(f"[{name}] must be a table, got {values!r}")
+            values = dict(values)
             if name == "search" and "scales" in values:
+                if not isinstance(values["scales"], list):
+                    raise ConfigError("search.scales must be a list of [[search.scales]] tables")
                 values["scales"] = tuple(_build(ScaleConfig, scale, "search.scales")
                                          for scale in values["scales"])
             built[name] = _build(section_cls, values, name)
         return cls(**built)
-
-
-def _number(name, value):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ConfigError(f"{name} must be a finite number, got {value!r}")
 
 
 def _build(section_cls, values, section):
@@ -276,6 +289,8 @@ def _build(section_cls, values, section):
 def read_toml(path):
     """Parse a TOML file into a dict with a one-line error on failure."""
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{path} is a folder, not a config file")
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}")
     try:
@@ -289,4 +304,9 @@ def load_config(path=None, extra_sections=("track",)):
     """The detector configuration: defaults, overridden by a TOML file if given."""
     if path is None:
         return DetectorConfig()
-    return DetectorConfig.from_dict(read_toml(path), extra_sections)
+    try:
+        return DetectorConfig.from_dict(read_toml(path), extra_sections)
+    except ConfigError as exc:
+        if str(path) in str(exc):
+            raise
+        raise ConfigError(f"{path}: {exc}") from None

@@ -52,14 +52,20 @@ class Detector:
     box_finder : BoxFinder
         Turns hits into heat and heat into boxes.
     timings : dict
-        Seconds spent per stage (see ``STAGES``) in the last call; with
-        several threads, the scales' stage times are summed over threads.
+        Seconds spent per stage (see ``STAGES``) in the last call to finish;
+        with several threads, the scales' stage times are summed over
+        threads.
 
     Notes
     -----
     Frames are BGR uint8 arrays, OpenCV's convention (``cv2.imread`` and
     ``cv2.VideoCapture`` return them); grey and BGRA frames are converted.
     A frame smaller than the smallest window gives no boxes.
+
+    A detector is thread-safe: several threads may call one detector at
+    once and get the detections serial calls give (work arrays are kept per
+    thread, timings per call).  Each calling thread then holds its own work
+    arrays, a few megabytes per frame size.
 
     Examples
     --------
@@ -112,8 +118,9 @@ class Detector:
         """The scale plans for frames of ``(width, height)`` (cached)."""
         plans = self._plans.get(frame_size)
         if plans is None:
-            plans = self._plans[frame_size] = plan_scales(self.config, self.model.options,
-                                                          frame_size)
+            # Threads planning the same size at once all keep the first plans stored.
+            plans = self._plans.setdefault(
+                frame_size, plan_scales(self.config, self.model.options, frame_size))
         return plans
 
     # -- stage 1: windows ---------------------------------------------------
@@ -153,21 +160,25 @@ class Detector:
         -------
         Hits
         """
-        frame = as_bgr_frame(frame)
-        for stage in STAGES:
-            self.timings[stage] = 0.0
+        timings = dict.fromkeys(STAGES, 0.0)
+        hits = self._hits(as_bgr_frame(frame), timings)
+        self.timings = timings
+        return hits
+
+    def _hits(self, frame, timings):
+        """:meth:`hits` of a checked frame, its stage times added to ``timings``."""
         threshold = self.config.search.decision_threshold
         boxes, scores, scales = [], [], []
         scored = 0
         t0 = time.perf_counter()
         prepared = self.prepare(frame)
-        self.timings["resize_convert"] += time.perf_counter() - t0
+        timings["resize_convert"] += time.perf_counter() - t0
         plans = self.plans((frame.shape[1], frame.shape[0]))
         if self.threads > 1 and len(plans) > 1:
             grids = list(self._scale_pool().map(
-                lambda plan: self._score_scale_timed(prepared, plan), plans))
+                lambda plan: self._score_scale_timed(prepared, plan, timings), plans))
         else:
-            grids = [self.score_scale(prepared, plan) for plan in plans]
+            grids = [self.score_scale(prepared, plan, timings) for plan in plans]
         for index, (plan, grid) in enumerate(zip(plans, grids)):
             grid = grid.ravel()
             scored += grid.size
@@ -181,13 +192,13 @@ class Detector:
                         np.zeros(0, np.int64), scored)
         return Hits(np.concatenate(boxes), np.concatenate(scores), np.concatenate(scales), scored)
 
-    def _score_scale_timed(self, prepared, plan):
-        """:meth:`score_scale` on a pool thread, its stage times added afterwards."""
+    def _score_scale_timed(self, prepared, plan, call_timings):
+        """:meth:`score_scale` on a pool thread, its stage times added to the call's."""
         timings = dict.fromkeys(STAGES, 0.0)
         scores = self.score_scale(prepared, plan, timings)
         with self._timings_lock:
             for stage, seconds in timings.items():
-                self.timings[stage] += seconds
+                call_timings[stage] += seconds
         return scores
 
     # -- stage 2: heat and boxes ----------------------------------------------
@@ -252,14 +263,16 @@ class Detector:
         start = time.perf_counter()
         frame = as_bgr_frame(frame)
         size = (frame.shape[1], frame.shape[0])
-        hits = self.hits(frame)
+        timings = dict.fromkeys(STAGES, 0.0)
+        hits = self._hits(frame, timings)
         t0 = time.perf_counter()
         heat, origin = self.heat_region(hits, size)
         t1 = time.perf_counter()
         detections = self.boxes_from_heat(heat, origin, size)
         end = time.perf_counter()
-        self.timings["heat"] = t1 - t0
-        self.timings["label"] = end - t1
-        self.timings["total"] = end - start
+        timings["heat"] = t1 - t0
+        timings["label"] = end - t1
+        timings["total"] = end - start
+        self.timings = timings
         self.last_windows_scored = hits.windows_scored
         return detections

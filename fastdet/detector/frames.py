@@ -23,6 +23,10 @@ def as_bgr_frame(frame):
         raise InputError(f"a frame must be a numpy array, got {type(frame).__name__}")
     if frame.dtype != np.uint8:
         raise InputError(f"a frame must be uint8 (BGR, 0-255), got {frame.dtype}")
+    if frame.ndim in (2, 3) and frame.shape[:2].count(0) and (
+            frame.ndim == 2 or frame.shape[2] in (1, 3, 4)):
+        # No pixel (OpenCV refuses to convert it): an empty BGR frame, which has no boxes.
+        return np.zeros(frame.shape[:2] + (3,), np.uint8)
     if frame.ndim == 2 or (frame.ndim == 3 and frame.shape[2] == 1):
         return cv2.cvtColor(np.ascontiguousarray(frame.reshape(frame.shape[:2])),
                             cv2.COLOR_GRAY2BGR)

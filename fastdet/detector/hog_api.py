@@ -7,8 +7,11 @@ directly: same arguments (the subset below), same output shape, order and
 dtype, values equal to within float32 rounding (< 1e-5).
 
 uint8 images take the kernels' exact integer-gradient paths (vector code
-for 9 bins and 8x8 cells, a lookup table otherwise); other images take the
-float path (see :func:`fastdet.kernels.hog.cell_histograms`).
+for 9 bins and 8x8 cells, a lookup table otherwise); float32 images the
+float32 path; float64 and other integer images a float64 path that computes
+as scikit-image does, in float64 throughout (see
+:func:`fastdet.kernels.hog.cell_histograms` and
+:func:`fastdet.kernels.blocks.normalize_blocks`).
 """
 
 from __future__ import annotations
@@ -49,17 +52,18 @@ def _output_dtype(dtype):
 def _kernel_input(image, multichannel):
     """The C-contiguous (H, W, C) array the cell kernel reads.
 
-    uint8 stays uint8 (exact integer-gradient paths); float32 stays float32.
-    bool becomes uint8 (0 and 1 give the same gradients as scikit-image's
-    0.0 and 1.0).  float16 is widened to float32 as scikit-image does.
-    Other integer types are passed as they are: the kernel converts them to
-    float32, which holds their gradients exactly up to 2**24, and compares
-    merged-channel magnitudes in float64 as scikit-image does for integers.
+    uint8 stays uint8 (exact integer-gradient paths); float32 and float64
+    stay as they are.  bool becomes uint8 (0 and 1 give the same gradients as
+    scikit-image's 0.0 and 1.0).  float16 is widened to float32 and every
+    other dtype (integers, objects holding numbers) converted to float64, as
+    scikit-image does (and with its ``ValueError`` for strings).
     """
     if image.dtype == np.bool_:
         image = image.astype(np.uint8)
     elif image.dtype == np.float16:
         image = image.astype(np.float32)
+    elif image.dtype not in (np.uint8, np.float32, np.float64):
+        image = image.astype(np.float64)
     if not multichannel:
         image = image[:, :, None]
     return np.ascontiguousarray(image)
@@ -108,9 +112,9 @@ def hog(image, orientations=9, pixels_per_cell=(8, 8), cells_per_block=(2, 2),
     -----
     ``visualize`` and ``transform_sqrt`` are not supported (pass
     ``np.sqrt(image)`` for the latter).  Values match scikit-image to float32
-    rounding; float64 images are computed in float32 (the kernels' float
-    path), so a gradient lying within float32 rounding of an orientation-bin
-    boundary may fall in the neighbouring bin.
+    rounding for uint8 and float32 images (scikit-image's own tests ask 5
+    decimals of float32) and to float64 rounding for float64 and other
+    integer images (its tests ask 7 decimals): those are computed in float64.
 
     Examples
     --------

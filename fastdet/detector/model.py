@@ -18,7 +18,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import zipfile
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -134,6 +133,8 @@ def load_model(path=None):
         data = resources.files("fastdet").joinpath("data", DEFAULT_MODEL_NAME).read_bytes()
         return _parse(io.BytesIO(data), "the bundled default model")
     path = Path(path)
+    if path.is_dir():
+        raise ModelError(f"{path} is a folder, not a model file")
     if not path.is_file():
         raise ModelError(f"model file not found: {path}")
     with open(path, "rb") as handle:
@@ -152,13 +153,19 @@ def _parse(handle, name):
             raise ModelError(f"{name} is not a fastdet model (its members are not arrays)")
     except ModelError:
         raise
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
-        raise ModelError(f"{name} is not a readable fastdet model: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - see below
+        # The archive is untrusted bytes read by zipfile, zlib and NumPy's
+        # header parser, whose failures on damaged input are open-ended
+        # (BadZipFile, zlib.error, EOFError, tokenize's TokenError,
+        # SyntaxError, NotImplementedError, ... found by fuzzing): any of
+        # them means the file is not a readable model.
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise ModelError(f"{name} is not a readable fastdet model: {reason}") from None
     if blob.dtype != np.uint8 or blob.ndim != 1:
         raise ModelError(f"{name} has malformed metadata")
     try:
         metadata = json.loads(blob.tobytes().decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError too
         raise ModelError(f"{name} has unreadable metadata: {exc}") from None
     if not isinstance(metadata, dict) or metadata.get("format") != FORMAT_NAME:
         raise ModelError(f"{name} is not a fastdet model")
@@ -174,7 +181,7 @@ def _parse(handle, name):
         bias = float(metadata["bias"])
         length = int(metadata["feature_length"])
         digest = str(metadata["weights_sha256"])
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise ModelError(f"{name} has invalid metadata: {exc}") from None
     if weights.dtype != np.float32 or weights.shape != (length,):
         raise ModelError(f"{name} has weights of {weights.dtype} {weights.shape}, "
@@ -185,5 +192,8 @@ def _parse(handle, name):
     if settings is not None and settings != _settings_digest(bias, options.to_dict()):
         raise ModelError(f"{name} failed its checksum: the bias or feature options were modified")
     report = metadata.get("report", {})
-    return Model(weights=weights, bias=bias, options=options,
-                 report=report if isinstance(report, dict) else {})
+    try:
+        return Model(weights=weights, bias=bias, options=options,
+                     report=report if isinstance(report, dict) else {})
+    except ModelError as exc:  # weights of the wrong length or not finite: name the file
+        raise ModelError(f"{name}: {exc}") from None

@@ -54,9 +54,12 @@ def plan_scales(config, options, frame_size):
 
     Scale coordinates are given for ``config.search.reference_size`` and
     scaled proportionally (window sides by the geometric mean of the two
-    axis factors).  Scales with no whole window in the frame are dropped.
+    axis factors).  Scales with no whole window in the frame are dropped (all
+    of them for a frame without pixels).
     """
     width, height = frame_size
+    if width <= 0 or height <= 0:
+        return ()  # no pixel, no window
     ref_w, ref_h = config.search.reference_size
     kx, ky = width / ref_w, height / ref_h
     k = math.sqrt(kx * ky)

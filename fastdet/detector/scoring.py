@@ -11,6 +11,7 @@ features' part of the score (:mod:`fastdet.kernels.colour`).
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 
@@ -63,9 +64,9 @@ class ScaleScorer:
 
     Notes
     -----
-    Work arrays are kept per plan object and reused from frame to frame, so
-    one scorer may score different plans concurrently (one thread per plan)
-    but not the same plan twice at once.
+    Work arrays are kept per thread and plan object and reused from frame to
+    frame, so any number of threads may score with one scorer at once, the
+    same plan included.
     """
 
     def __init__(self, model):
@@ -80,24 +81,29 @@ class ScaleScorer:
             bins = histogram_bin_lut(options.hist_bins)
             self._hist_lut = np.ascontiguousarray(hist_w[:, bins], dtype=np.float32)
         self._hog_channels = model.layout.hog_channels
-        self._workspace = {}
+        self._local = threading.local()
 
     def _buffer(self, plan, kind, shape, dtype):
         """A scale's work array, reused from frame to frame.
 
         Fresh multi-megabyte arrays every frame would cost page faults;
         callers get the array back filled, so the reuse is invisible.  Each
-        plan object has its own arrays, so scales scored concurrently never
-        share one; the plan is kept with them so that a recycled ``id`` of a
-        discarded plan is never mistaken for a live one.
+        thread has its own arrays per plan object, so scales scored
+        concurrently (by the detector's pool, or by callers sharing one
+        detector between threads) never share one; the plan is kept with
+        them so that a recycled ``id`` of a discarded plan is never mistaken
+        for a live one.
         """
+        workspace = getattr(self._local, "workspace", None)
+        if workspace is None:
+            workspace = self._local.workspace = {}
         key = (kind, id(plan))
-        entry = self._workspace.get(key)
+        entry = workspace.get(key)
         if entry is None or entry[0] is not plan:
-            if len(self._workspace) > _MAX_BUFFERS:
+            if len(workspace) > _MAX_BUFFERS:
                 # Plans made outside Detector.plans() (e.g. by callers of score_scale).
-                self._workspace.clear()
-            entry = self._workspace[key] = (plan, np.empty(shape, dtype))
+                workspace.clear()
+            entry = workspace[key] = (plan, np.empty(shape, dtype))
         return entry[1]
 
     def _resized_buffer(self, plan, channels):

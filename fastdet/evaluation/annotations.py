@@ -45,13 +45,17 @@ def load_annotations(path):
         file is missing, is not JSON, or does not have the structure above.
     """
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path} is a folder, not an annotation file")
     if not path.is_file():
         raise InputError(f"annotation file not found: {path}")
     try:
         with open(path, encoding="utf-8") as handle:
             data = json.load(handle)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        # JSONDecodeError's message is already one line with position info.
+    except (ValueError, RecursionError) as exc:
+        # JSONDecodeError (a ValueError) says where; a plain ValueError is an
+        # integer of more digits than Python converts, RecursionError nesting
+        # too deep to parse.
         raise InputError(f"{path} is not valid JSON: {exc}") from None
     if not isinstance(data, dict) or not isinstance(data.get("images"), dict):
         raise InputError(f"{path} must hold a JSON object with an \"images\" object")
@@ -68,10 +72,7 @@ def _parse_object(obj, where):
     if not isinstance(obj, dict):
         raise InputError(f"{where} must be an object with a \"box\"")
     box = obj.get("box")
-    # bool is an int subclass; a box of booleans is certainly a mistake.
-    if (not isinstance(box, list) or len(box) != 4
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                       and math.isfinite(v) for v in box)):
+    if not isinstance(box, list) or len(box) != 4 or not all(_is_coordinate(v) for v in box):
         raise InputError(f"{where}.box must be a list of 4 finite numbers, got {box!r}")
     if not (box[2] > box[0] and box[3] > box[1]):
         raise InputError(f"{where}.box must have x2 > x1 and y2 > y1, got {box!r}")
@@ -82,6 +83,16 @@ def _parse_object(obj, where):
     if not isinstance(difficult, bool):
         raise InputError(f"{where}.difficult must be true or false, got {difficult!r}")
     return {"box": [float(v) for v in box], "label": label, "difficult": difficult}
+
+
+def _is_coordinate(value):
+    """A finite number that fits a float (bool, an int subclass, is certainly a mistake)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an int too large for a float
+        return False
 
 
 def ground_truth_arrays(objects):

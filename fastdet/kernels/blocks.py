@@ -112,13 +112,57 @@ def _normalize_parallel(cells, energy, cpb_y, cpb_x, norm_code, eps, out):
                              out[by].reshape(out.shape[1] * out.shape[2]))
 
 
+@njit(cache=True, nogil=True)
+def _normalize_block_f64(block, norm_code, eps):
+    """One block of one channel, normalised in place as scikit-image's
+    ``_hog_normalize_block`` does it, in float64 and with its divisions."""
+    total = 0.0
+    if norm_code <= 1:
+        for v in block:
+            total += abs(v)
+        block /= total + eps
+        if norm_code == 1:
+            block[:] = np.sqrt(block)
+        return
+    for v in block:
+        total += v * v
+    block /= np.sqrt(total + eps * eps)
+    if norm_code == 3:
+        total = 0.0
+        for i in range(block.size):
+            block[i] = min(block[i], 0.2)
+            total += block[i] * block[i]
+        block /= np.sqrt(total + eps * eps)
+
+
+@njit(cache=True, nogil=True)
+def _normalize_blocks_f64(cells, cpb_y, cpb_x, norm_code, eps, out):
+    """The float64 path: every block gathered and normalised on its own."""
+    channels, nbins = cells.shape[2], cells.shape[3]
+    per_channel = cpb_y * cpb_x * nbins
+    for by in range(out.shape[0]):
+        for bx in range(out.shape[1]):
+            for c in range(channels):
+                block = out[by, bx, c * per_channel:(c + 1) * per_channel]
+                n = 0
+                for cy in range(cpb_y):
+                    for cx in range(cpb_x):
+                        for b in range(nbins):
+                            block[n] = cells[by + cy, bx + cx, c, b]
+                            n += 1
+                _normalize_block_f64(block, norm_code, eps)
+
+
 def normalize_blocks(cells, cells_per_block, norm, eps=EPS, parallel=False, out=None):
     """Normalise overlapping blocks of cells.
 
     Parameters
     ----------
-    cells : ndarray of float32, shape (Hc, Wc, C, nbins)
+    cells : ndarray of float32 or float64, shape (Hc, Wc, C, nbins)
         Cell histograms from :func:`fastdet.kernels.hog.cell_histograms`.
+        float64 cells (of float64 images) are normalised in float64, block
+        by block as scikit-image does; float32 cells by the vectorised
+        float32 kernels.
     cells_per_block : tuple of int
         ``(cpb_y, cpb_x)``.
     norm : {'L1', 'L1-sqrt', 'L2', 'L2-Hys'}
@@ -127,12 +171,13 @@ def normalize_blocks(cells, cells_per_block, norm, eps=EPS, parallel=False, out=
         Regulariser, as in scikit-image.
     parallel : bool
         Spread block rows over Numba's threads.
-    out : ndarray of float32, optional
-        Array of the output's shape to fill (saves an allocation per call).
+    out : ndarray, optional
+        Array of the output's shape and of the cells' dtype to fill (saves
+        an allocation per call).
 
     Returns
     -------
-    ndarray of float32, shape (Hc - cpb_y + 1, Wc - cpb_x + 1, C * cpb_y * cpb_x * nbins)
+    ndarray of the cells' dtype, shape (Hc - cpb_y + 1, Wc - cpb_x + 1, C * cpb_y * cpb_x * nbins)
         Normalised block features, each block ordered (channel, cell_y, cell_x, bin).
         Empty (zero rows or columns) when there are fewer cells than a block.
     """
@@ -140,11 +185,16 @@ def normalize_blocks(cells, cells_per_block, norm, eps=EPS, parallel=False, out=
     if norm not in NORM_CODES:
         raise ValueError(f"unknown block norm {norm!r}; expected one of {sorted(NORM_CODES)}")
     n_cells_y, n_cells_x, channels, nbins = cells.shape
+    double = cells.dtype == np.float64
     out = _output(out, (max(n_cells_y - cpb_y + 1, 0), max(n_cells_x - cpb_x + 1, 0),
-                        channels * cpb_y * cpb_x * nbins))
+                        channels * cpb_y * cpb_x * nbins), np.float64 if double else np.float32)
     if out.shape[0] == 0 or out.shape[1] == 0:
         return out
     norm_code = NORM_CODES[norm]
+    if double:
+        _normalize_blocks_f64(np.ascontiguousarray(cells), cpb_y, cpb_x, norm_code, float(eps),
+                              out)
+        return out
     energy = cell_energy(cells, norm_code)
     kernel = _normalize_parallel if parallel else _normalize_serial
     kernel(cells, energy, cpb_y, cpb_x, norm_code, float(eps), out)

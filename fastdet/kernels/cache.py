@@ -13,19 +13,49 @@ name and features; the folder keeps different builds apart on disk too).
 The folder is, in order of precedence, ``NUMBA_CACHE_DIR`` (used as given),
 ``$FASTDET_CACHE_DIR/kernels/<key>``, or
 ``platformdirs.user_cache_dir("fastdet")/kernels/<key>``.
+
+A cache never stops fastdet (what :func:`configure` arranges):
+
+* a folder fastdet cannot write (read-only, another user's, a full disk)
+  is replaced by a temporary folder of this process, deleted at exit, that
+  starts as a copy of what the folder holds: a read-only cache filled
+  beforehand (say, in a container image) still serves its kernels, and
+  kernels it lacks are compiled and not kept.  Numba would otherwise fall
+  back to ``__pycache__`` beside the sources, inside the installed package;
+* an entry that cannot be loaded (files cut short by a full disk or a
+  killed process, garbage) is dropped and its kernel compiled again; an
+  entry that cannot be saved is not kept;
+* several processes may share one folder: Numba writes every file to a
+  temporary name and renames it into place, so a reader never sees half a
+  file (two processes compiling at once may each write the same entry);
+* entries of another CPU or another Numba are never loaded: the folder's
+  key names both, and Numba's index keys every entry by its target CPU.
+
+Each of these is logged on the ``fastdet.kernels`` logger (``fastdet
+--verbose`` shows them), as is :func:`summary`.
 """
 
 from __future__ import annotations
 
+import atexit
+import functools
 import hashlib
+import logging
 import os
+import shutil
+import sys
+import tempfile
 from pathlib import Path
 
 import llvmlite.binding as llvm
 import numba
+from numba.core import caching
+from numba.core.dispatcher import Dispatcher
 from platformdirs import user_cache_dir
 
 from .._version import __version__
+
+log = logging.getLogger("fastdet.kernels")
 
 #: Overrides the user cache folder (the kernels go in its ``kernels/`` subfolder).
 CACHE_ENV_VAR = "FASTDET_CACHE_DIR"
@@ -59,15 +89,136 @@ def kernel_cache_dir():
     return Path(base) / "kernels" / cache_key()
 
 
+def _unusable(path):
+    """Why fastdet cannot create files in ``path`` (``None`` when it can), as Numba checks it."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=path).close()
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    return None
+
+
+@functools.lru_cache(maxsize=None)
+def _process_folder():
+    """A temporary kernel folder for this process only, deleted at exit."""
+    path = Path(tempfile.mkdtemp(prefix="fastdet-kernels-"))
+    atexit.register(shutil.rmtree, path, ignore_errors=True)
+    return path
+
+
+#: What :func:`configure` chose: the folder, and why the configured one was not used.
+_status = {"folder": None, "problem": None, "configured": None}
+
+
 def configure():
     """Point Numba's cache at :func:`kernel_cache_dir`; call before any kernel is defined.
 
     Numba picks a function's cache folder when its ``@njit(cache=True)``
     decorator runs; the environment variable is set as well so that Numba's
     reloads of its configuration, and processes started from this one,
-    keep the same folder.
+    keep the same folder.  A folder fastdet cannot write is replaced by a
+    temporary one (see the module notes); loading and saving entries is
+    made fault-tolerant.
+
+    Returns
+    -------
+    Path
+        The folder kernels are cached in for this process.
     """
-    path = str(kernel_cache_dir())
-    os.environ["NUMBA_CACHE_DIR"] = path
-    numba.config.CACHE_DIR = path
-    return Path(path)
+    configured = kernel_cache_dir()
+    path, problem = configured, _unusable(configured)
+    if problem is not None:
+        path = _process_folder()
+        _copy_entries(configured, path)
+    _status.update(folder=path, problem=problem, configured=configured)
+    os.environ["NUMBA_CACHE_DIR"] = str(path)
+    numba.config.CACHE_DIR = str(path)
+    _tolerate_damaged_entries()
+    return path
+
+
+def _copy_entries(source, target):
+    """Copy the cache files of ``source`` that can be read into ``target`` (writable copies)."""
+    if not source.is_dir():
+        return
+    for entry in source.rglob("*.nb[ic]"):
+        try:
+            destination = target / entry.relative_to(source)
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(entry, destination)
+        except OSError:
+            continue
+
+
+def active_cache_dir():
+    """The folder this process caches kernels in (after :func:`configure`)."""
+    return _status["folder"] or kernel_cache_dir()
+
+
+def describe():
+    """One line: where kernels are cached, and why not where configured if so."""
+    if _status["problem"] is not None:
+        return (f"kernel cache {_status['configured']} is not writable ({_status['problem']}): "
+                f"using a copy of it in {_status['folder']}, kept for this run only")
+    return f"kernel cache: {active_cache_dir()}"
+
+
+def _is_fastdet_kernel(cache):
+    return getattr(getattr(cache, "_py_func", None), "__module__", "").startswith("fastdet.")
+
+
+def _tolerate_damaged_entries():
+    """Make Numba's cache of fastdet's kernels treat a damaged entry as a miss.
+
+    ``numba.core.caching.Cache`` unpickles an entry's index and data files
+    without a guard: a file cut short raises ``UnpicklingError`` (or
+    ``EOFError``, ...) from the kernel's first call, in every later run.
+    Here a failed load empties the kernel's index (``Cache.flush``, which
+    Numba writes atomically) so the kernel is compiled and saved afresh, and
+    a failed save leaves it uncached.  Other packages' caches are untouched.
+    """
+    if getattr(caching.Cache, "_fastdet_tolerant", False):
+        return
+    load, save = caching.Cache.load_overload, caching.Cache.save_overload
+
+    def load_overload(self, sig, target_context):
+        try:
+            return load(self, sig, target_context)
+        except Exception as exc:  # noqa: BLE001 - any damaged entry is a miss
+            if not _is_fastdet_kernel(self):
+                raise
+            log.info("kernel cache entry of %s in %s is damaged (%s: %s): compiling it again",
+                     self._py_func.__name__, self.cache_path, type(exc).__name__, exc)
+            try:
+                self.flush()
+            except Exception as flush_exc:  # noqa: BLE001
+                log.info("cannot reset it (%s): it stays uncached", flush_exc)
+                self.disable()
+            return None
+
+    def save_overload(self, sig, data):
+        try:
+            save(self, sig, data)
+        except Exception as exc:  # noqa: BLE001 - a kernel that cannot be cached still runs
+            if not _is_fastdet_kernel(self):
+                raise
+            log.info("cannot cache %s in %s (%s: %s): it is compiled again next run",
+                     self._py_func.__name__, self.cache_path, type(exc).__name__, exc)
+
+    caching.Cache.load_overload = load_overload
+    caching.Cache.save_overload = save_overload
+    caching.Cache._fastdet_tolerant = True
+
+
+def summary():
+    """How many of fastdet's compiled kernels this process loaded from the cache and compiled."""
+    hits = misses = 0
+    for name, module in list(sys.modules.items()):
+        if not name.startswith("fastdet.kernels.") or module is None:
+            continue
+        for value in vars(module).values():
+            if isinstance(value, Dispatcher):
+                hits += sum(value.stats.cache_hits.values())
+                misses += sum(value.stats.cache_misses.values())
+    return f"kernels: {hits} loaded from the cache, {misses} compiled ({active_cache_dir()})"

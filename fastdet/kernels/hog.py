@@ -20,9 +20,12 @@ Three paths compute the bins, each agreeing with scikit-image bin for bin:
   before first use (sums may differ from the other paths in float32 order);
 * other uint8 images: a lookup table of the bin of every integer gradient,
   built with scikit-image's own float64 expression, and a scattered add;
-* float images: the number of boundaries the folded gradient lies past (sign
-  tests of cross products), with the exact float64 ``atan2`` rule for vectors
-  within float32 rounding of a boundary.
+* float32 images (and other dtypes, converted to float32): the number of
+  boundaries the folded gradient lies past (sign tests of cross products),
+  with the exact float64 ``atan2`` rule for vectors within float32 rounding
+  of a boundary;
+* float64 images: scikit-image's own computation, NumPy expressions and all
+  (:mod:`fastdet.kernels.hog_float64`), so they agree to the last bit.
 
 Cells come out as ``(Hc, Wc, C, nbins)`` or, for the detector's window
 scoring, in the *phase layout* of a window step (:func:`phase_layout_shape`).
@@ -39,6 +42,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ._llvm import HAVE_AVX2, HAVE_AVX512F, load_vector, store_vector
+from .hog_float64 import float64_cell_histograms
 
 # A gradient whose cross product with a bin boundary is below this fraction of
 # its magnitude is re-binned with the exact atan2 rule.  float32 rounding of
@@ -378,10 +382,13 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
 
     Parameters
     ----------
-    image : ndarray of uint8 or float32, shape (H, W, C)
-        C-contiguous image; each channel is treated independently unless
-        ``merge_channels`` is set.  uint8 images take the fast exact path
-        (orientation bins from a lookup table of all integer gradients).
+    image : ndarray, shape (H, W, C)
+        Image; each channel is treated independently unless
+        ``merge_channels`` is set.  uint8 images take the fast exact paths
+        (orientation bins from comparisons or a lookup table of all integer
+        gradients); float64 images are computed exactly as scikit-image
+        computes them (:mod:`fastdet.kernels.hog_float64`, serial) and give
+        float64 cells; other dtypes are converted to float32.
     pixels_per_cell : tuple of int
         ``(ppc_y, ppc_x)``.
     nbins : int
@@ -392,8 +399,9 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
         has a single channel.
     parallel : bool
         Spread cell rows over Numba's threads.
-    out : ndarray of float32, optional
-        Array of the output's shape to fill (saves an allocation per call).
+    out : ndarray, optional
+        Array of the output's shape and dtype to fill (saves an allocation
+        per call).
     phase_step : int, optional
         Return the cells in the phase layout of :func:`phase_layout_shape`
         for windows stepped by this many cells (what
@@ -404,9 +412,9 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
 
     Returns
     -------
-    ndarray of float32, shape (H // ppc_y, W // ppc_x, C_out, nbins)
+    ndarray of float32 (float64 for float64 images), shape (H // ppc_y, W // ppc_x, C_out, nbins)
         Mean gradient magnitude per orientation bin of each cell (or the
-        phase layout of the same values).
+        phase layout of the same values, always float32).
     """
     ppc_y, ppc_x = int(pixels_per_cell[0]), int(pixels_per_cell[1])
     if not isinstance(image, np.ndarray) or image.ndim != 3:
@@ -439,7 +447,7 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
             _u8_cells(image, ppc_y, ppc_x, nbins, parallel, cells_y, cells_x,
                       _layout(phase_shape, phase_step, cells_x), out.reshape(-1))
         return out
-    out = _output(out, shape)
+    out = _output(out, shape, np.float64 if image.dtype == np.float64 else np.float32)
     if out.size == 0:
         return out
     if image.dtype == np.uint8 and not merge_channels:
@@ -451,6 +459,8 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
     merge_mode = _SEPARATE
     if merge_channels:
         merge_mode = _MERGE_FLOAT32 if image.dtype == np.float32 else _MERGE_FLOAT64
+    if image.dtype == np.float64:
+        return float64_cell_histograms(image, ppc_y, ppc_x, nbins, merge_channels, bounds, out)
     kernel(np.asarray(image, dtype=np.float32), ppc_y, ppc_x, nbins, merge_mode,
            cos_sin, bounds, out)
     return out
@@ -484,12 +494,13 @@ def _bin_lut(nbins):
     return orientation_lut(nbins)
 
 
-def _output(out, shape):
-    """``out`` checked against ``shape``, or a new float32 array."""
+def _output(out, shape, dtype=np.float32):
+    """``out`` checked against ``shape`` and ``dtype``, or a new array."""
+    dtype = np.dtype(dtype)
     if out is None:
-        return np.empty(shape, dtype=np.float32)
-    if out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
-        raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}, "
+        return np.empty(shape, dtype=dtype)
+    if out.shape != shape or out.dtype != dtype or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous {dtype} array of shape {shape}, "
                          f"got {out.dtype} {out.shape}")
     return out
 

@@ -26,6 +26,8 @@ import numpy as np
 
 from ..detector.features import WINDOW
 from ..errors import InputError
+from ..files.atomic import is_temporary
+from ..files.images import read_image
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg"}
 CLASS_FOLDERS = {"vehicles": 1, "non-vehicles": 0}
@@ -69,7 +71,9 @@ def list_dataset(data_dir, extra_negatives=()):
     for folder, label, prefix in sources:
         if not folder.is_dir():
             raise InputError(f"training data folder not found: {folder}")
-        found = sorted((p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES),
+        # Temporary files of outputs being written (or left by a killed run) are no crops.
+        found = sorted((p for p in folder.rglob("*")
+                        if p.suffix.lower() in IMAGE_SUFFIXES and not is_temporary(p)),
                        key=_natural_key)
         if not found:
             raise InputError(f"no PNG/JPG images under {folder}")
@@ -110,9 +114,7 @@ def leak_free_folds(groups, n_folds=5):
 def load_crops(paths, threads=2):
     """Read crops as 64x64 BGR uint8 arrays (resized if another size)."""
     def read(path):
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if image is None:
-            raise InputError(f"cannot read image {path}")
+        image = read_image(path)
         if image.shape[:2] != (WINDOW, WINDOW):
             image = cv2.resize(image, (WINDOW, WINDOW), interpolation=cv2.INTER_AREA)
         return image

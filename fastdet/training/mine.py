@@ -22,7 +22,8 @@ import numpy as np
 from ..detector.features import WINDOW
 from ..detector.geometry import iou_matrix
 from ..errors import InputError
-from ..files.atomic import atomic_path
+from ..files.atomic import output_in_folder, refuse_overwriting_inputs
+from ..files.images import read_image, write_image
 
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".m4v"}
 
@@ -67,10 +68,7 @@ def annotated_frames(source, annotations):
             capture.release()
         return
     if source.name in annotations:
-        frame = cv2.imread(str(source), cv2.IMREAD_COLOR)
-        if frame is None:
-            raise InputError(f"cannot read {source} as an image")
-        yield source.name, frame
+        yield source.name, read_image(source)
 
 
 def background_hits(boxes, vehicles, max_iou=0.1, max_cover=0.5):
@@ -128,6 +126,8 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
     MiningResult
     """
     out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"cannot write crops into {out_dir}: it is not a folder")
     out_dir.mkdir(parents=True, exist_ok=True)
     frames = hits_total = 0
     saved = []
@@ -142,10 +142,9 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
                 x1, y1, x2, y2 = (int(v) for v in box)
                 crop = cv2.resize(frame[y1:y2, x1:x2], (WINDOW, WINDOW),
                                   interpolation=cv2.INTER_AREA)
-                path = out_dir / f"{Path(source).stem}_{key}_{n:03d}.png"
-                with atomic_path(path) as tmp:
-                    if not cv2.imwrite(str(tmp), crop):
-                        raise InputError(f"cannot write {path}")
+                path = output_in_folder(out_dir, f"{Path(source).stem}_{key}_{n:03d}.png")
+                refuse_overwriting_inputs(path, sources)
+                write_image(path, crop)
                 saved.append(path)
     if frames == 0:
         raise InputError("no annotated frame found in the sources (videos are annotated as "

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..detector.features import WINDOW, color_planes, crop_features, hog_input
 from ..errors import InputError
+from ..files.images import read_image
 from ..kernels.hog import cell_histograms
 from .figure import (CHANNEL_NAMES, GROUP_NAMES, LineCollection, check_output_path, new_figure,
                      rgb, save_figure, show_image, to_rgba)
@@ -75,9 +76,7 @@ def samples_figure(dataset, path, n=8, seed=None):
                 axes.set_axis_off()
                 continue
             crop_path = Path(dataset.paths[chosen[slot]])
-            image = cv2.imread(str(crop_path), cv2.IMREAD_COLOR)
-            if image is None:
-                raise InputError(f"cannot read {crop_path} as an image")
+            image = read_image(crop_path)
             axes.imshow(rgb(image), interpolation="nearest")
             # Folder and name: the folder is the crop's source (GTI_Far, KITTI...).
             axes.set_title("/".join(crop_path.parts[-2:]), fontsize=7)

@@ -147,7 +147,7 @@ def test_missing_file(tmp_path):
 
 
 def test_directory_instead_of_file(tmp_path):
-    assert_model_error(tmp_path, "not found")
+    assert_model_error(tmp_path, "is a folder")
 
 
 def test_empty_file(tmp_path):

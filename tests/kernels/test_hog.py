@@ -434,3 +434,82 @@ def test_blocks_of_all_zero_cells_are_zero(norm):
     blocks = normalize_blocks(np.zeros((3, 3, 3, 9), np.float32), (2, 2), norm)
     assert blocks.shape == (2, 2, 3 * 4 * 9)
     assert np.all(blocks == 0.0)
+
+
+# -- the float64 path: scikit-image's own computation --------------------------
+#: float64 cells and blocks agree with scikit-image to float64 rounding (its
+#: cell sums are float32, computed identically; the block norms' sums differ
+#: only in order).
+TOL_FLOAT64 = 1e-12
+
+
+def float64_image(rng, shape):
+    """Fractional values and a symmetric blurred disc: hundreds of gradients
+    lie within a bit of a 45-degree boundary, where the bin depends on the
+    last bit of NumPy's arctan2."""
+    image = rng.random(shape)
+    yy, xx = np.mgrid[:shape[0], :shape[1]]
+    disc = ((yy - shape[0] / 2) ** 2 + (xx - shape[1] / 2) ** 2 < (min(shape[:2]) / 3) ** 2)
+    blurred = cv2.GaussianBlur(disc.astype(np.float64) * 100, (0, 0), 2)
+    image[:, :, 0] = blurred
+    return image
+
+
+@pytest.mark.parametrize("merge", [False, True])
+@pytest.mark.parametrize("config", CONFIGS, ids=lambda c: f"{c[0][0]}x{c[0][1]}-ppc{c[1][0]}x"
+                         f"{c[1][1]}-cpb{c[2][0]}-o{c[3]}")
+@pytest.mark.parametrize("norm", NORMS)
+def test_float64_matches_skimage_to_float64_rounding(norm, config, merge):
+    (height, width), ppc, cpb, nbins = config
+    image = float64_image(np.random.default_rng(height + width), (height + 40, width + 40, 3))
+    cells = cell_histograms(image, ppc, nbins, merge_channels=merge)
+    assert cells.dtype == np.float64
+    blocks = normalize_blocks(cells, cpb, norm)
+    assert blocks.dtype == np.float64
+    hb, wb = blocks.shape[:2]
+    if merge:
+        expected = skimage_blocks(image, ppc, cpb, nbins, norm, channel_axis=-1)
+        actual = blocks.reshape(expected.shape)
+    else:
+        expected = skimage_blocks(image[:, :, 0], ppc, cpb, nbins, norm)
+        actual = blocks.reshape(hb, wb, 3, cpb[0], cpb[1], nbins)[:, :, 0]
+    assert actual.shape == expected.shape
+    assert float(np.max(np.abs(actual - expected))) < TOL_FLOAT64
+
+
+def test_float64_cells_match_naive():
+    image = float64_image(np.random.default_rng(1), (45, 61, 3))
+    np.testing.assert_allclose(cell_histograms(image, (6, 8), 9),
+                               naive_cell_histograms(image, (6, 8), 9), rtol=1e-6, atol=1e-6)
+
+
+def test_float64_bands_give_the_same_cells(monkeypatch):
+    # Large images are computed a band of cell rows at a time.
+    from fastdet.kernels import hog_float64
+
+    image = float64_image(np.random.default_rng(2), (83, 50, 3))
+    whole = cell_histograms(image, (8, 8), 9, merge_channels=True)
+    monkeypatch.setattr(hog_float64, "_BAND_PIXELS", 8 * 50 * 3 * 2)
+    np.testing.assert_array_equal(cell_histograms(image, (8, 8), 9, merge_channels=True), whole)
+
+
+@pytest.mark.parametrize("norm", NORMS)
+def test_float64_blocks_match_naive(norm):
+    rng = np.random.default_rng(4)
+    cells = rng.random((5, 6, 2, 9)) * rng.choice([0.01, 1.0, 300.0], (5, 6, 2, 9))
+    cells[0, 0] = 0.0
+    np.testing.assert_allclose(normalize_blocks(cells, (2, 3), norm),
+                               naive_normalize_blocks(cells, (2, 3), norm), rtol=0, atol=1e-13)
+
+
+def test_float64_nan_and_inf_follow_skimage():
+    image = np.random.default_rng(5).random((32, 32))
+    image[5, 7] = np.nan
+    image[20, 20] = np.inf
+    with np.errstate(invalid="ignore"):  # scikit-image divides NaN blocks by NaN norms
+        expected = skimage_hog(image, cells_per_block=(2, 2), feature_vector=False)
+    actual = normalize_blocks(cell_histograms(image[:, :, None], (8, 8), 9), (2, 2), "L2-Hys")
+    np.testing.assert_array_equal(np.isnan(actual.reshape(expected.shape)), np.isnan(expected))
+    finite = ~np.isnan(expected)
+    np.testing.assert_allclose(actual.reshape(expected.shape)[finite], expected[finite],
+                               atol=TOL_FLOAT64)

@@ -1,0 +1,70 @@
+"""One Detector called from several threads at once gives the detections serial calls give."""
+
+from __future__ import annotations
+
+import threading
+
+import cv2
+import numpy as np
+import pytest
+
+from fastdet.detector.detector import Detector
+
+#: Threads calling the one detector at once, and passes each makes over the frames.
+CALLERS = 4
+PASSES = 3
+
+
+@pytest.fixture(scope="module")
+def frames(data_dir):
+    """Test images at two sizes: threads detect on the same size (same plans,
+    same work arrays before they were kept per thread) and on different ones."""
+    paths = sorted((data_dir / "test_images").glob("*.jpg"))[:3]
+    assert len(paths) == 3, f"expected test images in {data_dir / 'test_images'}"
+    images = [cv2.imread(str(path)) for path in paths]
+    return images + [cv2.resize(image, (960, 540)) for image in images[:2]]
+
+
+def detect_concurrently(detector, frames):
+    """Every caller detects on every frame, each in its own order, all at once."""
+    barrier = threading.Barrier(CALLERS)
+    results = [[] for _ in range(CALLERS)]
+    errors = []
+
+    def caller(k):
+        order = np.random.default_rng(k).permutation(len(frames) * PASSES) % len(frames)
+        try:
+            barrier.wait()
+            for index in order:
+                results[k].append((index, detector(frames[index]), detector.hits(frames[index])))
+        except BaseException as exc:  # noqa: BLE001 - reported by the test
+            errors.append(exc)
+
+    threads = [threading.Thread(target=caller, args=(k,)) for k in range(CALLERS)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert not errors, errors
+    return [item for per_caller in results for item in per_caller]
+
+
+@pytest.mark.parametrize("pool_threads", [1, 2])
+def test_concurrent_calls_match_serial_calls(frames, pool_threads):
+    serial = Detector(threads=1)
+    expected = [(serial(frame), serial.hits(frame)) for frame in frames]
+    assert sum(len(detections) for detections, _ in expected) > 0
+    try:
+        shared = Detector(threads=pool_threads)
+        results = detect_concurrently(shared, frames)
+    finally:
+        Detector(threads=1)  # restore the thread count for later tests
+    assert len(results) == CALLERS * PASSES * len(frames)
+    for index, detections, hits in results:
+        want_detections, want_hits = expected[index]
+        np.testing.assert_array_equal(detections.xyxy, want_detections.xyxy)
+        np.testing.assert_array_equal(detections.score, want_detections.score)
+        np.testing.assert_array_equal(hits.boxes, want_hits.boxes)
+        np.testing.assert_array_equal(hits.scores, want_hits.scores)
+    # Each call publishes its own complete timings.
+    assert shared.timings["cells"] > 0

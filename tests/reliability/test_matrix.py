@@ -1,0 +1,574 @@
+"""The bad-input matrix: every verb that reads or writes, against the faults users hand it.
+
+Each row of :data:`ROWS` runs one ``fastdet`` command line and holds it to
+the promises of ``docs/reliability.md``:
+
+* the exit status is the documented one: 0 when fastdet copes (converts the
+  input, finds nothing), 2 when it refuses;
+* refused: stderr is exactly one line, ``fastdet: error: ...``, naming the
+  file at fault and matching the row's problem;
+* coped: stderr is empty (but for the notice that kernels are compiling);
+* never a traceback;
+* nothing half-written: every file the row guards is byte-for-byte what it
+  was before (or still absent);
+* no temporary file is left in any folder the command touched.
+
+Rows are data: the video verbs (``run``, ``batch``, stream inputs) add
+their faults (zero-frame video, frames that change size, audio only, ...)
+as more rows of the same table.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import re
+import shutil
+import stat
+import subprocess
+import sys
+import tempfile
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+import pytest
+
+from fastdet.cli.app import EXIT_ERROR, main
+from fastdet.detector.model import load_model
+from fastdet.files.atomic import is_temporary
+from filesystems import private_device, read_only, tiny_filesystem
+
+ROOT = Path(__file__).resolve().parents[2]
+FASTDET = [sys.executable, "-c",
+           "import sys; from fastdet.cli import main; sys.exit(main(sys.argv[1:]))"]
+#: Lines besides the error a command may print on stderr: the notice that
+#: kernels are compiling, and the progress lines of training and tuning.
+NOTICE = re.compile(r"^(fastdet: compiling kernels|\d+ crops \(|features: |random split: |"
+                    r"leak-free split: |cross-validation C=|chosen C=|\d+ combinations on )")
+
+
+# -- the inputs every row draws from ---------------------------------------------
+class Inputs:
+    """Good and bad files of every kind, made once (see :func:`inputs`)."""
+
+    def __init__(self, folder, data_dir):
+        self.dir = folder
+        source = data_dir / "test_images" / "test1.jpg"
+        jpeg = source.read_bytes()
+        image = cv2.imread(str(source))
+        rng = np.random.default_rng(17)
+        # Images.
+        self.image = self.file("image.jpg", jpeg)
+        self.file("empty.jpg", b"")
+        self.file("random.jpg", rng.bytes(4096))
+        self.file("truncated.jpg", jpeg[:len(jpeg) // 2])
+        (folder / "folder.jpg").mkdir()
+        cv2.imwrite(str(folder / "grey.png"), cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
+        cv2.imwrite(str(folder / "rgba.png"), cv2.cvtColor(image, cv2.COLOR_BGR2BGRA))
+        cv2.imwrite(str(folder / "deep.png"), image.astype(np.uint16) * 257)
+        cv2.imwrite(str(folder / "tiny.png"), image[:10, :10])
+        cv2.imwrite(str(folder / "huge.jpg"), cv2.resize(image, (7680, 4320)))
+        # Models.
+        bundled = (ROOT / "fastdet" / "data" / "default_model.npz").read_bytes()
+        self.file("empty.npz", b"")
+        self.file("random.npz", rng.bytes(4096))
+        self.file("truncated.npz", bundled[:len(bundled) // 2])
+        (folder / "folder.npz").mkdir()
+        self.file("tampered.npz", self.tampered(bundled))
+        self.file("mismatched.npz", self.rewritten(bundled, weights=np.zeros(10, np.float32)))
+        self.file("future.npz", self.rewritten(bundled, format_version=2))
+        # Configs.
+        self.file("empty.toml", b"")
+        self.file("random.toml", rng.bytes(512))
+        self.file("truncated.toml", b"[search]\ndecision_thr")
+        (folder / "folder.toml").mkdir()
+        self.file("unknown.toml", b"[search]\nthreshold = 1\n")
+        self.file("wrong_type.toml", b"[heat]\nthreshold = \"high\"\n")
+        # Annotations (image.jpg is test1.jpg).
+        truth = json.loads((data_dir / "test_images" / "annotations.json").read_text())
+        objects = truth["images"]["test1.jpg"]
+        self.annotations = self.file("annotations.json",
+                                     json.dumps({"images": {"image.jpg": objects}}).encode())
+        self.file("damaged_image.json", json.dumps({"images": {"truncated.jpg": []}}).encode())
+        self.file("empty.json", b"")
+        self.file("random.json", rng.bytes(512))
+        self.file("truncated.json", self.annotations.read_bytes()[:40])
+        (folder / "folder.json").mkdir()
+        self.file("wrong.json", b'{"images": [1, 2]}')
+        # Training data: 30 + 30 synthetic crops; the same with a damaged one;
+        # class folders without images.
+        self.data = folder / "data"
+        for label, group in ((1, "vehicles/GTI_Far"), (0, "non-vehicles/GTI")):
+            crops = self.data / group
+            crops.mkdir(parents=True)
+            for i in range(30):
+                crop = rng.integers(0, 60, (64, 64, 3), dtype=np.uint8)
+                if label:
+                    crop[20:48, 8:56] = 220
+                cv2.imwrite(str(crops / f"image{i:04d}.png"), crop)
+        self.damaged_data = folder / "damaged_data"
+        shutil.copytree(self.data, self.damaged_data)
+        (self.damaged_data / "vehicles" / "GTI_Far" / "image0007.png").write_bytes(rng.bytes(300))
+        for group in ("vehicles", "non-vehicles"):
+            (folder / "empty_data" / group).mkdir(parents=True)
+        # Private stand-ins for /dev/full and /dev/null: a bug that renames
+        # over its output must not replace the machine's own devices.
+        (folder / "dev").mkdir()
+        self.full = private_device(folder / "dev", "full")
+        self.null = private_device(folder / "dev", "null")
+
+    def device(self, name):
+        path = getattr(self, name)
+        if path is None:
+            pytest.skip("needs root to make a device node")
+        return path
+
+    def file(self, name, data):
+        path = self.dir / name
+        path.write_bytes(data)
+        return path
+
+    def __truediv__(self, name):
+        return self.dir / name
+
+    @staticmethod
+    def tampered(bundled):
+        with np.load(io.BytesIO(bundled)) as archive:
+            weights, metadata = archive["weights"].copy(), archive["metadata"]
+        weights[100] += 0.5
+        buffer = io.BytesIO()
+        np.savez(buffer, weights=weights, metadata=metadata)
+        return buffer.getvalue()
+
+    @staticmethod
+    def rewritten(bundled, weights=None, **changes):
+        with np.load(io.BytesIO(bundled)) as archive:
+            metadata = json.loads(archive["metadata"].tobytes())
+            weights = archive["weights"] if weights is None else weights
+        metadata.update(changes)
+        import hashlib
+        metadata["weights_sha256"] = hashlib.sha256(weights.astype("<f4").tobytes()).hexdigest()
+        metadata["feature_length"] = int(weights.size)
+        buffer = io.BytesIO()
+        np.savez(buffer, weights=weights,
+                 metadata=np.frombuffer(json.dumps(metadata).encode(), np.uint8))
+        return buffer.getvalue()
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory, data_dir):
+    return Inputs(tmp_path_factory.mktemp("inputs"), data_dir)
+
+
+# -- rows ------------------------------------------------------------------------
+@dataclass
+class Row:
+    """One fault of one verb and the behaviour promised.
+
+    ``argv(inputs, out)`` builds the command line (``out``: the row's own
+    empty folder); ``names(inputs, out)`` the file the error line must name;
+    ``problem`` a regular expression it must match; ``guarded(inputs, out)``
+    the files that must end up as they started; ``setup(inputs, out)`` a
+    context manager around the run (a mount, a reader); ``check(inputs, out,
+    stdout)`` what a successful run must have produced; ``messages`` the
+    lines a successful run prints on stderr (when stdout holds the output).
+    """
+
+    verb: str
+    fault: str
+    argv: Callable
+    code: int = EXIT_ERROR
+    names: Callable | None = None
+    problem: str = ""
+    guarded: Callable = lambda i, o: []
+    setup: Callable | None = None
+    check: Callable | None = None
+    subprocess: bool = False
+    messages: str = "^$"
+
+    @property
+    def id(self):
+        return f"{self.verb}: {self.fault}"
+
+
+def s(path):
+    return str(path)
+
+
+@contextlib.contextmanager
+def full_disk(folder, previous_size=9000):
+    """``folder/disk``: a 16 KiB disk holding a file ``previous`` (rows run as root only)."""
+    with tiny_filesystem(folder / "disk", size_kib=16) as disk:
+        if disk is None:
+            pytest.skip("a full disk needs root to mount a tmpfs")
+        (disk / "previous").write_bytes(b"p" * previous_size)
+        yield disk
+
+
+@contextlib.contextmanager
+def read_only_out(folder):
+    with read_only(folder):
+        yield folder
+
+
+@contextlib.contextmanager
+def fifo_reader(path, received):
+    os.mkfifo(path)
+    # A daemon: should the FIFO be replaced instead of written (the bug this
+    # row guards against), the reader waits forever, but the tests go on.
+    reader = threading.Thread(target=lambda: received.append(path.read_bytes()), daemon=True)
+    reader.start()
+    try:
+        yield
+    finally:
+        reader.join(timeout=60)
+
+
+def loads_model(data):
+    """The model whose file content is ``data``."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "model.npz"
+        path.write_bytes(data)
+        return load_model(path)
+
+
+def bad_file_rows(verb, kind, argv):
+    """Missing, empty, random, truncated and folder versions of one input of a verb."""
+    ext = {"image": ".jpg", "model": ".npz", "config": ".toml", "annotations": ".json"}[kind]
+    problems = {
+        "image": ("not found", "empty", "as an image", "as an image|damaged", "folder"),
+        "model": ("not found", "not a readable", "not a readable", "not a readable", "folder"),
+        "config": ("not found", None, "not valid TOML", "not valid TOML", "folder"),
+        "annotations": ("not found", "not valid JSON", "not valid JSON", "not valid JSON",
+                        "folder"),
+    }[kind]
+    rows = []
+    for (fault, name), problem in zip((("missing", "missing"), ("empty", "empty"),
+                                       ("random bytes", "random"), ("truncated", "truncated"),
+                                       ("a folder", "folder")), problems):
+        path_of = (lambda i, o, n=name: i / f"{n}{ext}")
+        if problem is None:  # an empty config is a valid one: the defaults
+            rows.append(Row(verb, f"{kind} {fault}", lambda i, o, p=path_of: argv(p(i, o), i, o),
+                            code=0))
+            continue
+        rows.append(Row(verb, f"{kind} {fault}", lambda i, o, p=path_of: argv(p(i, o), i, o),
+                        names=path_of, problem=problem))
+    return rows
+
+
+def boxes_of(stdout):
+    return json.loads(stdout.splitlines()[-1])["boxes"]
+
+
+ROWS = [
+    # ---- detect -------------------------------------------------------------------
+    *bad_file_rows("detect", "image", lambda p, i, o: ["detect", s(p)]),
+    Row("detect", "grey PNG", lambda i, o: ["detect", s(i / "grey.png")], code=0),
+    Row("detect", "RGBA PNG", lambda i, o: ["detect", s(i / "rgba.png")], code=0),
+    Row("detect", "16-bit PNG", lambda i, o: ["detect", s(i / "deep.png")], code=0),
+    Row("detect", "image smaller than a window", lambda i, o: ["detect", s(i / "tiny.png")],
+        code=0),
+    Row("detect", "8K image", lambda i, o: ["detect", s(i / "huge.jpg")], code=0,
+        check=lambda i, o, out: boxes_of(out)),
+    *bad_file_rows("detect", "model",
+                   lambda p, i, o: ["detect", s(i.image), "--model", s(p)]),
+    Row("detect", "model tampered with",
+        lambda i, o: ["detect", s(i.image), "--model", s(i / "tampered.npz")],
+        names=lambda i, o: i / "tampered.npz", problem="checksum"),
+    Row("detect", "model of mismatched length",
+        lambda i, o: ["detect", s(i.image), "--model", s(i / "mismatched.npz")],
+        names=lambda i, o: i / "mismatched.npz", problem="shape"),
+    Row("detect", "model of a future format",
+        lambda i, o: ["detect", s(i.image), "--model", s(i / "future.npz")],
+        names=lambda i, o: i / "future.npz", problem="version"),
+    *bad_file_rows("detect", "config",
+                   lambda p, i, o: ["detect", s(i.image), "--config", s(p)]),
+    Row("detect", "config with an unknown key",
+        lambda i, o: ["detect", s(i.image), "--config", s(i / "unknown.toml")],
+        names=lambda i, o: i / "unknown.toml", problem="unknown key.*threshold"),
+    Row("detect", "config value of the wrong type",
+        lambda i, o: ["detect", s(i.image), "--config", s(i / "wrong_type.toml")],
+        names=lambda i, o: i / "wrong_type.toml",
+        problem="heat.threshold must be a finite number"),
+    Row("detect", "--out-dir read-only",
+        lambda i, o: ["detect", s(i.image), "--out-dir", s(o)],
+        names=lambda i, o: o / "image.jpg", problem="Read-only file system|not writable",
+        guarded=lambda i, o: [o / "image.jpg"], setup=lambda i, o: read_only_out(o)),
+    Row("detect", "--out-dir on a full disk",
+        lambda i, o: ["detect", s(i.image), "--out-dir", s(o / "disk")],
+        names=lambda i, o: o / "disk" / "image.jpg", problem="No space left|disk full",
+        guarded=lambda i, o: [o / "disk" / "image.jpg", o / "disk" / "previous"],
+        setup=lambda i, o: full_disk(o)),
+    Row("detect", "--out-dir is the input's folder",
+        lambda i, o: ["detect", s(i.image), "--out-dir", s(i.dir)],
+        names=lambda i, o: i.image, problem="it is the input",
+        guarded=lambda i, o: [i.image]),
+    Row("detect", "--out-dir is a file",
+        lambda i, o: ["detect", s(i.image), "--out-dir", s(i / "grey.png")],
+        names=lambda i, o: i / "grey.png", problem="not a folder",
+        guarded=lambda i, o: [i / "grey.png"]),
+    Row("detect", "--out-dir holds a symlink named like the output",
+        lambda i, o: (os.symlink(o.parent / "outside.jpg", o / "image.jpg"),
+                      ["detect", s(i.image), "--out-dir", s(o)])[1],
+        names=lambda i, o: o / "image.jpg", problem="symbolic link",
+        guarded=lambda i, o: [o.parent / "outside.jpg"]),
+    # ---- eval ---------------------------------------------------------------------
+    *bad_file_rows("eval", "annotations", lambda p, i, o: ["eval", s(p), s(i.dir)]),
+    Row("eval", "annotations of the wrong structure",
+        lambda i, o: ["eval", s(i / "wrong.json"), s(i.dir)],
+        names=lambda i, o: i / "wrong.json", problem="images"),
+    Row("eval", "image folder missing",
+        lambda i, o: ["eval", s(i.annotations), s(i / "missing")],
+        names=lambda i, o: i / "missing" / "image.jpg", problem="not found"),
+    Row("eval", "annotated image truncated",
+        lambda i, o: ["eval", s(i / "damaged_image.json"), s(i.dir)],
+        names=lambda i, o: i / "truncated.jpg", problem="as an image|damaged"),
+    Row("eval", "model tampered with",
+        lambda i, o: ["eval", s(i.annotations), s(i.dir), "--model", s(i / "tampered.npz")],
+        names=lambda i, o: i / "tampered.npz", problem="checksum"),
+    Row("eval", "annotated image", lambda i, o: ["eval", s(i.annotations), s(i.dir)], code=0),
+    # ---- train --------------------------------------------------------------------
+    Row("train", "data folder missing",
+        lambda i, o: ["train", s(i / "missing"), "--out", s(o / "m.npz")],
+        names=lambda i, o: i / "missing", problem="not found"),
+    Row("train", "data folder is a file",
+        lambda i, o: ["train", s(i.image), "--out", s(o / "m.npz")],
+        names=lambda i, o: i.image, problem="not found"),
+    Row("train", "data folder without images",
+        lambda i, o: ["train", s(i / "empty_data"), "--out", s(o / "m.npz")],
+        names=lambda i, o: i / "empty_data", problem="no PNG/JPG"),
+    Row("train", "a damaged crop",
+        lambda i, o: ["train", s(i.damaged_data), "--out", s(o / "m.npz"), "--no-jitter"],
+        names=lambda i, o: i.damaged_data / "vehicles" / "GTI_Far" / "image0007.png",
+        problem="as an image", guarded=lambda i, o: [o / "m.npz"]),
+]
+
+#: Options that make training on the synthetic crops take a second.
+QUICK = ["--no-flip", "--no-jitter", "--spatial-size", "16", "--hist-bins", "16"]
+
+
+def train_to(out, **row):
+    return Row("train", row.pop("fault"), lambda i, o: ["train", s(i.data), "--out",
+                                                         s(out(i, o)), *QUICK], **row)
+
+
+ROWS += [
+    train_to(lambda i, o: o / "m.npz", fault="--out in a read-only folder",
+             names=lambda i, o: o / "m.npz", problem="not writable",
+             guarded=lambda i, o: [o / "m.npz"], setup=lambda i, o: read_only_out(o)),
+    train_to(lambda i, o: o / "missing" / "m.npz", fault="--out in a missing folder",
+             names=lambda i, o: o / "missing" / "m.npz", problem="not found"),
+    train_to(lambda i, o: o, fault="--out is a folder", names=lambda i, o: o,
+             problem="directory"),
+    train_to(lambda i, o: o / "disk" / "previous", fault="--out on a full disk",
+             names=lambda i, o: o / "disk" / "previous", problem="No space left",
+             guarded=lambda i, o: [o / "disk" / "previous"], setup=lambda i, o: full_disk(o)),
+    train_to(lambda i, o: i.device("full"), fault="--out a full device (/dev/full)",
+             names=lambda i, o: i.full, problem="No space left",
+             check=lambda i, o, out: stat.S_ISCHR(os.stat(i.full).st_mode)),
+    train_to(lambda i, o: i.device("null"), fault="--out a null device (/dev/null)", code=0,
+             check=lambda i, o, out: stat.S_ISCHR(os.stat(i.null).st_mode)),
+    train_to(lambda i, o: "-", fault="--out - (stdout)", code=0, subprocess=True,
+             messages="^(feature length|accuracy: |model written to -)",
+             check=lambda i, o, out: loads_model(out).report["crops"] == 60),
+    train_to(lambda i, o: o / "latest.npz", fault="--out is a symlink (followed)", code=0,
+             setup=lambda i, o: contextlib.nullcontext(
+                 os.symlink(o / "real.npz", o / "latest.npz")),
+             check=lambda i, o, out: (o / "latest.npz").is_symlink()
+             and load_model(o / "real.npz").report["crops"] == 60),
+    Row("train", "invalid option",
+        lambda i, o: ["train", s(i.data), "--out", s(o / "m.npz"), "--pixels-per-cell", "7"],
+        problem="pixels_per_cell"),
+]
+
+_FIFO = []
+ROWS += [
+    train_to(lambda i, o: o / "model.fifo", fault="--out is a FIFO (written through)", code=0,
+             setup=lambda i, o: fifo_reader(o / "model.fifo", _FIFO),
+             check=lambda i, o, out: stat.S_ISFIFO(os.stat(o / "model.fifo").st_mode)
+             and loads_model(_FIFO[-1]).report["crops"] == 60),
+    # ---- mine ---------------------------------------------------------------------
+    Row("mine", "source missing",
+        lambda i, o: ["mine", s(i / "missing.jpg"), "--annotations", s(i.annotations),
+                      "--out", s(o)], names=lambda i, o: i / "missing.jpg", problem="not found"),
+    Row("mine", "source random bytes",
+        lambda i, o: ["mine", s(i / "random.jpg"), "--annotations",
+                      s(i.file("random_annotated.json",
+                               b'{"images": {"random.jpg": []}}')), "--out", s(o)],
+        names=lambda i, o: i / "random.jpg", problem="as an image"),
+    Row("mine", "annotations random bytes",
+        lambda i, o: ["mine", s(i.image), "--annotations", s(i / "random.json"), "--out", s(o)],
+        names=lambda i, o: i / "random.json", problem="not valid JSON"),
+    Row("mine", "--out is a file",
+        lambda i, o: ["mine", s(i.image), "--annotations", s(i.annotations), "--out",
+                      s(i / "grey.png")],
+        names=lambda i, o: i / "grey.png", problem="not a folder",
+        guarded=lambda i, o: [i / "grey.png"]),
+    Row("mine", "--out read-only",
+        lambda i, o: ["mine", s(i.image), "--annotations", s(i.annotations), "--out", s(o)],
+        names=lambda i, o: o, problem="Read-only file system|Permission denied",
+        setup=lambda i, o: read_only_out(o)),
+    Row("mine", "--out on a full disk",
+        lambda i, o: ["mine", s(i.image), "--annotations", s(i.annotations), "--out",
+                      s(o / "disk")],
+        names=lambda i, o: o / "disk", problem="No space left",
+        guarded=lambda i, o: [o / "disk" / "previous"], setup=lambda i, o: full_disk(o)),
+    Row("mine", "annotated image", lambda i, o: ["mine", s(i.image), "--annotations",
+                                                 s(i.annotations), "--out", s(o)], code=0,
+        check=lambda i, o, out: all(cv2.imread(str(p)) is not None for p in o.iterdir())),
+    # ---- tune ---------------------------------------------------------------------
+    Row("tune", "annotations random bytes",
+        lambda i, o: ["tune", s(i.image), "--annotations", s(i / "random.json")],
+        names=lambda i, o: i / "random.json", problem="not valid JSON"),
+    Row("tune", "source truncated",
+        lambda i, o: ["tune", s(i / "truncated.jpg"), "--annotations",
+                      s(i / "damaged_image.json")],
+        names=lambda i, o: i / "truncated.jpg", problem="as an image|damaged"),
+    Row("tune", "config random bytes",
+        lambda i, o: ["tune", s(i.image), "--annotations", s(i.annotations), "--config",
+                      s(i / "random.toml")],
+        names=lambda i, o: i / "random.toml", problem="not valid TOML"),
+    Row("tune", "--out is the --config",
+        lambda i, o: ["tune", s(i.image), "--annotations", s(i.annotations), "--config",
+                      s(i / "empty.toml"), "--out", s(i / "empty.toml")],
+        names=lambda i, o: i / "empty.toml", problem="it is the input",
+        guarded=lambda i, o: [i / "empty.toml"]),
+    Row("tune", "--out in a read-only folder",
+        lambda i, o: ["tune", s(i.image), "--annotations", s(i.annotations), "--out",
+                      s(o / "best.toml")],
+        names=lambda i, o: o / "best.toml", problem="not writable",
+        setup=lambda i, o: read_only_out(o)),
+    Row("tune", "--out on a full disk",
+        lambda i, o: ["tune", s(i.image), "--annotations", s(i.annotations), "--out",
+                      s(o / "disk" / "previous"), "--top", "1"],
+        names=lambda i, o: o / "disk" / "previous", problem="No space left",
+        guarded=lambda i, o: [o / "disk" / "previous"],
+        setup=lambda i, o: full_disk(o, 16 * 1024 - 10)),
+    Row("tune", "--out a full device (/dev/full)",
+        lambda i, o: ["tune", s(i.image), "--annotations", s(i.annotations), "--out",
+                      s(i.device("full")), "--top", "1"],
+        names=lambda i, o: i.full, problem="No space left"),
+    Row("tune", "--out - (stdout)",
+        lambda i, o: ["tune", s(i.image), "--annotations", s(i.annotations), "--out", "-",
+                      "--top", "1"], code=0, subprocess=True,
+        messages=r"^(\||best thresholds written to -)",
+        check=lambda i, o, out: "[search]" in out.decode() and "|" not in out.decode()),
+    # ---- viz ----------------------------------------------------------------------
+    Row("viz", "hog: image missing",
+        lambda i, o: ["viz", "hog", s(i / "missing.jpg"), "--out", s(o / "h.png")],
+        names=lambda i, o: i / "missing.jpg", problem="not found"),
+    Row("viz", "hog: image random bytes",
+        lambda i, o: ["viz", "hog", s(i / "random.jpg"), "--out", s(o / "h.png")],
+        names=lambda i, o: i / "random.jpg", problem="as an image"),
+    Row("viz", "hog: image truncated",
+        lambda i, o: ["viz", "hog", s(i / "truncated.jpg"), "--out", s(o / "h.png")],
+        names=lambda i, o: i / "truncated.jpg", problem="as an image|damaged"),
+    Row("viz", "hog: --out is the input",
+        lambda i, o: ["viz", "hog", s(i / "grey.png"), "--out", s(i / "grey.png")],
+        names=lambda i, o: i / "grey.png", problem="it is the input",
+        guarded=lambda i, o: [i / "grey.png"]),
+    Row("viz", "hog: --out in a read-only folder",
+        lambda i, o: ["viz", "hog", s(i.image), "--out", s(o / "h.png")],
+        names=lambda i, o: o / "h.png", problem="Read-only file system|Permission denied",
+        guarded=lambda i, o: [o / "h.png"], setup=lambda i, o: read_only_out(o)),
+    Row("viz", "hog: --out on a full disk",
+        lambda i, o: ["viz", "hog", s(i.image), "--out", s(o / "disk" / "h.png")],
+        names=lambda i, o: o / "disk" / "h.png", problem="No space left",
+        guarded=lambda i, o: [o / "disk" / "h.png", o / "disk" / "previous"],
+        setup=lambda i, o: full_disk(o)),
+    Row("viz", "hog: --out with an unknown suffix",
+        lambda i, o: ["viz", "hog", s(i.image), "--out", s(o / "h.xyz")],
+        names=lambda i, o: o / "h.xyz", problem="must end in"),
+    Row("viz", "hog: --out a device (no suffix)",
+        lambda i, o: ["viz", "hog", s(i.image), "--out", s(i.device("full"))],
+        names=lambda i, o: i.full, problem="must end in"),
+    Row("viz", "samples: data folder missing",
+        lambda i, o: ["viz", "samples", s(i / "missing"), "--out", s(o / "s.png")],
+        names=lambda i, o: i / "missing", problem="not found"),
+    Row("viz", "windows: image smaller than every window",
+        lambda i, o: ["viz", "windows", s(i / "tiny.png"), "--out", s(o / "w.png"),
+                      "--config", s(i.file("one_scale.toml", b"[[search.scales]]\nwindow = 64\n"
+                                                           b"overlap = 0.5\nx = [0, 1280]\n"
+                                                           b"y = [0, 720]\n"
+                                                           b"[search]\nreference_size = "
+                                                           b"[10, 10]\n"))],
+        names=lambda i, o: i / "tiny.png", problem="smaller than every search window"),
+    Row("viz", "detect: annotations random bytes",
+        lambda i, o: ["viz", "detect", s(i.image), "--annotations", s(i / "random.json"),
+                      "--out", s(o / "d.png")],
+        names=lambda i, o: i / "random.json", problem="not valid JSON"),
+]
+
+
+# -- the checks ----------------------------------------------------------------------
+def snapshot(paths):
+    return {str(p): (Path(p).read_bytes() if Path(p).is_file() else None) for p in paths}
+
+
+def leftovers(*folders):
+    found = []
+    for folder in folders:
+        for root, _, files in os.walk(folder):
+            found += [os.path.join(root, f) for f in files if is_temporary(f) or ".part" in f]
+    return found
+
+
+def run_row(row, argv, capfd):
+    if row.subprocess:
+        result = subprocess.run([*FASTDET, *argv], cwd=ROOT, capture_output=True, timeout=600)
+        return result.returncode, result.stdout, result.stderr.decode()
+    code = main(argv)
+    captured = capfd.readouterr()
+    return code, captured.out.encode(), captured.err
+
+
+@pytest.mark.parametrize("row", ROWS, ids=lambda row: row.id)
+def test_row(row, inputs, tmp_path, capfd):
+    out = tmp_path / "out"
+    out.mkdir()
+    setup = row.setup(inputs, out) if row.setup else contextlib.nullcontext()
+    with setup:
+        argv = row.argv(inputs, out)
+        guarded = row.guarded(inputs, out)
+        before = snapshot(guarded)
+        capfd.readouterr()
+        code, stdout, stderr = run_row(row, argv, capfd)
+        after = snapshot(guarded)
+        left = leftovers(out, inputs.dir)
+        assert "Traceback" not in stderr, stderr
+        lines = [line for line in stderr.splitlines() if not NOTICE.match(line)]
+        assert code == row.code, f"exit {code}, stderr: {stderr}"
+        if row.code == EXIT_ERROR:
+            assert len(lines) == 1 and lines[0].startswith("fastdet: error: "), stderr
+            problem = lines[0]
+            if row.names is not None:
+                named = str(row.names(inputs, out))
+                assert named in lines[0], lines[0]
+                problem = problem.replace(named, "<file>")  # the problem, not the file's name
+            assert re.search(row.problem, problem), lines[0]
+        else:
+            assert all(re.search(row.messages, line) for line in lines), stderr
+            if row.check is not None:
+                assert row.check(inputs, out, stdout)
+        assert after == before, "a guarded file changed"
+        assert not left, f"temporary files left: {left}"
+
+
+def test_debug_shows_the_traceback(inputs):
+    from fastdet.errors import InputError
+
+    with pytest.raises(InputError, match="not found"):
+        main(["--debug", "detect", s(inputs / "missing.jpg")])
+    with pytest.raises(InputError, match="not found"):
+        main(["detect", s(inputs / "missing.jpg"), "--debug"])
+
+
+def test_every_non_video_verb_has_rows():
+    verbs = {row.verb for row in ROWS}
+    assert {"detect", "eval", "train", "mine", "tune", "viz"} <= verbs
