@@ -2,7 +2,7 @@
 
 Every user-facing failure (a :class:`~fastdet.errors.FastdetError` or an
 ``OSError``) becomes one line ``fastdet: error: ...`` on stderr and exit code 2;
-Ctrl-C exits with 130.
+Ctrl-C exits with 130 and SIGTERM, during a run, with 143 (128 + the signal).
 """
 
 from __future__ import annotations
@@ -28,6 +28,8 @@ def build_parser():
     """The argument parser of the ``fastdet`` command."""
     parser = argparse.ArgumentParser(
         prog="fastdet", description="Fast classical vehicle detection (HOG + linear SVM).")
+    parser.add_argument("--verbose", "-v", action="store_true",
+                        help="say more about what a command does (e.g. run's thread plan)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add_verb in (add_detect_parser, add_eval_parser, add_train_parser, add_mine_parser,
                      add_tune_parser, add_run_parser, add_viz_parser, add_bench_parser):
@@ -41,9 +43,9 @@ def main(argv=None):
     args = parser.parse_args(argv)
     try:
         return args.handler(args)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         print("fastdet: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return 128 + getattr(exc, "signum", EXIT_INTERRUPTED - 128)
     except (FastdetError, OSError) as exc:
         message = " ".join(str(exc).split()) or type(exc).__name__
         print(f"fastdet: error: {message}", file=sys.stderr)

@@ -15,7 +15,7 @@ from video_stubs import BlockDetector, bundled_model_path, moving_block
 
 from fastdet.cli import app as cli
 from fastdet.cli import run as commands_run
-from fastdet.cli.run import Progress, add_run_parser, default_output
+from fastdet.cli.run import ProgressBar, add_run_parser, default_output
 from fastdet.video.config import TrackConfig
 from fastdet.video.pipeline import VideoPipeline
 
@@ -155,15 +155,25 @@ def test_quiet_and_non_terminal_runs_print_no_progress(fastdet, stub_pipeline, b
     assert capsys.readouterr().err == ""     # stderr is not a terminal here
 
 
-def test_progress_bar_shows_frames_and_fps():
+def test_progress_bar_shows_frames_fps_and_time_left(monkeypatch):
+    clock = iter(float(t) for t in range(100))
+    monkeypatch.setattr("tqdm.std.time", lambda: next(clock))   # one second per call
     stream = io.StringIO()
-    bar = Progress(10, enabled=True, stream=stream)
-    bar.update(4, 31.25, force=True)
-    assert stream.getvalue() == "\rframe 4/10 [############..................]  31.2 fps"
-    bar.clear()
-    assert stream.getvalue().endswith("\r\x1b[K")
+    bar = ProgressBar(enabled=True, stream=stream)
+    bar.update(4, 10)
+    bar.update(8, 10)
+    shown = stream.getvalue().split("\r")[-1]
+    assert "8/10" in shown and "frames/s" in shown and "<00:" in shown   # time left
+    bar.close()
+    live = io.StringIO()
+    bar = ProgressBar(enabled=True, stream=live)
+    bar.update(4, None)
+    bar.update(9, None)
+    shown = live.getvalue().split("\r")[-1]
+    assert "9 frames" in shown and "frames/s" in shown and "<" not in shown   # no end, no ETA
+    bar.close()
     silent = io.StringIO()
-    Progress(10, enabled=False, stream=silent).update(4, 30.0, force=True)
+    ProgressBar(enabled=False, stream=silent).update(4, 10)
     assert silent.getvalue() == ""
 
 

@@ -1,0 +1,249 @@
+"""The pipelined run: decode, detect+track, draw+encode and the detections file as stages.
+
+Each stage is a thread; bounded queues join them, so frames stay in order and
+memory stays flat whatever the video's length::
+
+    decode ──q──> detect+track ──q──> draw+encode      (with a video output)
+                               └─q──> detections file  (and the callback)
+
+Decoding, encoding, colour conversion and the detector's kernels release
+the GIL, so the stages overlap on the cores.  The stage threads are planned
+with the codecs' and the detector's own threads (:func:`plan_threads`) so
+that together they fit the cores instead of stacking.
+
+Stopping
+--------
+* An exception in any stage stops every stage; :meth:`Conveyor.run` raises
+  it once all have stopped.
+* :meth:`Conveyor.stop` (the first Ctrl-C or SIGTERM) stops decoding; the
+  frames already decoded flow through to both outputs, so both end with the
+  same, complete frames.
+* :meth:`Conveyor.abort` (a second signal) stops every stage at once.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+
+#: Frames each queue holds: enough to ride out one slow frame, few enough for flat memory.
+QUEUE_FRAMES = 4
+#: Seconds a blocked stage waits before looking at the stop/abort flags again.
+POLL_SECONDS = 0.1
+#: Marks the end of the frame stream.
+END = object()
+
+#: Per-frame CPU milliseconds of each kind of work on one 1280x720 frame on one core, as
+#: measured on the development machine (README, "Video"); only their ratios matter.
+_DECODE_MS, _SEARCH_MS, _ENCODE_MS = 3.7, 4.5, 4.5
+
+
+class Aborted(Exception):
+    """Raised inside a stage when another stage failed or the run was aborted."""
+
+
+@dataclass(frozen=True)
+class ThreadPlan:
+    """Threads given to each kind of work so that together they fit ``cores``."""
+
+    cores: int
+    decoder: int
+    detector: int
+    encoder: int
+
+    def describe(self):
+        """One line for ``--verbose``."""
+        encoder = f", encoder {self.encoder}" if self.encoder else ""
+        return (f"threads: {self.cores} cores -> decoder {self.decoder}, detector "
+                f"{self.detector}{encoder} (plus one light thread per stage)")
+
+
+def plan_threads(cores, video=True, search_fraction=1.0):
+    """Share ``cores`` between the decoder, the detector and the encoder by their load.
+
+    Parameters
+    ----------
+    cores : int
+        Threads the whole run may keep busy.
+    video : bool
+        Whether an annotated video is encoded.
+    search_fraction : float
+        Share of frames fully searched (``1 / every``).
+
+    Returns
+    -------
+    ThreadPlan
+        Every part gets at least one thread; the rest go by largest share of
+        the per-frame CPU time, so with 2 cores and ``--every 5`` the decoder,
+        the heaviest part, gets both.
+    """
+    cores = max(1, int(cores))
+    loads = {"decoder": _DECODE_MS, "detector": _SEARCH_MS * max(search_fraction, 0.05),
+             "encoder": _ENCODE_MS if video else 0.0}
+    parts = [name for name, load in loads.items() if load > 0]
+    total = sum(loads[name] for name in parts)
+    shares = {name: cores * loads[name] / total for name in parts}
+    threads = {name: max(1, math.floor(shares[name])) for name in parts}
+    spare = cores - sum(threads.values())
+    for name in sorted(parts, key=lambda n: shares[n] - math.floor(shares[n]), reverse=True):
+        if spare <= 0:
+            break
+        threads[name] += 1
+        spare -= 1
+    return ThreadPlan(cores, threads["decoder"], threads["detector"], threads.get("encoder", 0))
+
+
+@dataclass
+class StageClock:
+    """Where one stage's time went: CPU of its thread, and waiting on its neighbours."""
+
+    cpu: float = 0.0
+    starved: float = 0.0   # waiting for input
+    blocked: float = 0.0   # waiting for room downstream
+    wall: float = 0.0
+
+
+@dataclass
+class StageTimes:
+    """Clocks of every stage of a run, by stage name, and the process's CPU."""
+
+    stages: dict = field(default_factory=dict)
+    process_cpu: float = 0.0
+
+    def bound(self):
+        """The stage that limited the run: the one that waited least."""
+        if not self.stages:
+            return None
+        return min(self.stages, key=lambda n: self.stages[n].starved + self.stages[n].blocked)
+
+
+class Conveyor:
+    """Stage threads joined by bounded queues, with shared stop and abort flags.
+
+    Stage functions receive the conveyor and use :meth:`get` and :meth:`put`
+    on its queues; both give up with :class:`Aborted` when any stage failed.
+    """
+
+    def __init__(self):
+        self.stopping = threading.Event()
+        self._aborting = threading.Event()
+        self._threads = []
+        self._errors = []
+        self._unread = set()    # queues whose consumer has stopped
+        self.times = StageTimes()
+        #: True while :meth:`run` waits for the stages.
+        self.running = False
+
+    # -- queues -----------------------------------------------------------------
+    def queue(self, size=QUEUE_FRAMES):
+        """A new bounded queue between two stages."""
+        return queue.Queue(maxsize=size)
+
+    def get(self, source, clock):
+        """The next item of ``source``; raises :class:`Aborted` once the run aborts."""
+        start = time.perf_counter()
+        try:
+            while True:
+                if self._aborting.is_set():
+                    raise Aborted
+                try:
+                    return source.get(timeout=POLL_SECONDS)
+                except queue.Empty:
+                    continue
+        finally:
+            clock.starved += time.perf_counter() - start
+
+    def put(self, target, item, clock):
+        """Put ``item`` on ``target``, waiting for room; raises :class:`Aborted` on abort.
+
+        An item for a stage that has stopped reading is dropped.
+        """
+        start = time.perf_counter()
+        try:
+            while id(target) not in self._unread:
+                if self._aborting.is_set():
+                    raise Aborted
+                try:
+                    target.put(item, timeout=POLL_SECONDS)
+                    return
+                except queue.Full:
+                    continue
+        finally:
+            clock.blocked += time.perf_counter() - start
+
+    # -- stages -----------------------------------------------------------------
+    def add(self, name, function, *args, inbox=None):
+        """Run ``function(clock, *args)`` on its own thread once :meth:`run` starts.
+
+        ``inbox`` is the queue the stage reads: once the stage ends, items put
+        there are dropped instead of waiting for room forever.
+        """
+        clock = self.times.stages[name] = StageClock()
+
+        def body():
+            cpu, wall = time.thread_time(), time.perf_counter()
+            try:
+                function(clock, *args)
+            except Aborted:
+                pass
+            except BaseException as exc:  # noqa: BLE001 - re-raised by run()
+                self._errors.append(exc)
+                self._aborting.set()
+            finally:
+                if inbox is not None:
+                    self._unread.add(id(inbox))
+                clock.cpu = time.thread_time() - cpu
+                clock.wall = time.perf_counter() - wall
+
+        self._threads.append(threading.Thread(target=body, name=f"fastdet-{name}", daemon=True))
+
+    def stop(self):
+        """Stop reading input; what was read still goes through every stage."""
+        self.stopping.set()
+
+    def abort(self):
+        """Stop every stage now."""
+        self.stopping.set()
+        self._aborting.set()
+
+    @property
+    def aborted(self):
+        return self._aborting.is_set()
+
+    def run(self, on_tick=None):
+        """Start every stage and wait for all of them.
+
+        Parameters
+        ----------
+        on_tick : callable, optional
+            Called about 10 times a second on the calling thread while the
+            stages run (progress display); signal handlers run between ticks.
+
+        Raises
+        ------
+        BaseException
+            The first error of any stage, once every stage has stopped.
+        """
+        cpu = time.process_time()
+        self.running = True
+        for thread in self._threads:
+            thread.start()
+        try:
+            for thread in self._threads:
+                while thread.is_alive():
+                    thread.join(POLL_SECONDS)
+                    if on_tick is not None:
+                        on_tick()
+        except BaseException:
+            self.abort()
+            for thread in self._threads:
+                thread.join()
+            raise
+        finally:
+            self.running = False
+            self.times.process_cpu = time.process_time() - cpu
+        if self._errors:
+            raise self._errors[0]
