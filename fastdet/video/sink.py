@@ -157,11 +157,12 @@ class VideoSink(StagedFile):
     def __init__(self, path, fps, size, codec="h264", crf=None, preset=None, threads=1,
                  time_base=None, colour=None):
         options = codec_options(codec, crf, preset, threads)
-        container_format = CONTAINERS.get(os.path.splitext(str(path))[1].lower())
+        super().__init__(path)
+        container_format = CONTAINERS.get(self.path.suffix.lower())
         if container_format is None:
+            self.discard()
             raise InputError(f"cannot write a video to {path} (unsupported suffix; use one of "
                              f"{', '.join(CONTAINERS)})")
-        super().__init__(path)
         self.codec = codec
         self.size = (int(size[0]), int(size[1]))
         self.rate = Fraction(fps).limit_denominator(1001000)

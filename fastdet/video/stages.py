@@ -76,23 +76,16 @@ def plan_threads(cores, video=True, search_fraction=1.0):
     Returns
     -------
     ThreadPlan
-        Every part gets at least one thread; the rest go by largest share of
-        the per-frame CPU time, so with 2 cores and ``--every 5`` the decoder,
-        the heaviest part, gets both.
+        Each part's share of the cores is its share of the per-frame CPU time,
+        rounded, and at least one thread: with 2 cores and ``--every 5`` the
+        decoder, most of the work, gets both and the detector (mostly idle) one.
     """
     cores = max(1, int(cores))
     loads = {"decoder": _DECODE_MS, "detector": _SEARCH_MS * max(search_fraction, 0.05),
              "encoder": _ENCODE_MS if video else 0.0}
-    parts = [name for name, load in loads.items() if load > 0]
-    total = sum(loads[name] for name in parts)
-    shares = {name: cores * loads[name] / total for name in parts}
-    threads = {name: max(1, math.floor(shares[name])) for name in parts}
-    spare = cores - sum(threads.values())
-    for name in sorted(parts, key=lambda n: shares[n] - math.floor(shares[n]), reverse=True):
-        if spare <= 0:
-            break
-        threads[name] += 1
-        spare -= 1
+    total = sum(loads.values())
+    threads = {name: max(1, round(cores * load / total)) if load else 0
+               for name, load in loads.items()}
     return ThreadPlan(cores, threads["decoder"], threads["detector"], threads.get("encoder", 0))
 
 
@@ -163,9 +156,11 @@ class Conveyor:
         """
         start = time.perf_counter()
         try:
-            while id(target) not in self._unread:
+            while True:
                 if self._aborting.is_set():
                     raise Aborted
+                if id(target) in self._unread:
+                    return
                 try:
                     target.put(item, timeout=POLL_SECONDS)
                     return
@@ -191,7 +186,7 @@ class Conveyor:
                 pass
             except BaseException as exc:  # noqa: BLE001 - re-raised by run()
                 self._errors.append(exc)
-                self._aborting.set()
+                self.abort()
             finally:
                 if inbox is not None:
                     self._unread.add(id(inbox))
