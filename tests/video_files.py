@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import io
+import socket
+import threading
+import time
 from fractions import Fraction
 
 import av
@@ -35,3 +39,53 @@ def write_clip(path, frames, fps=12.0, size=SIZE, times=None):
             container.mux(stream.encode(frame))
         container.mux(stream.encode(None))
     return path
+
+
+def free_port(kind):
+    """A port on 127.0.0.1 that nothing listens on now (``socket.SOCK_STREAM`` or ``SOCK_DGRAM``)."""
+    with socket.socket(socket.AF_INET, kind) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def mpegts_bytes(path, frames=None):
+    """The video stream of ``path`` remuxed into MPEG-TS, in memory."""
+    buffer = io.BytesIO()
+    with av.open(str(path)) as source, av.open(buffer, "w", format="mpegts") as target:
+        stream = source.streams.video[0]
+        out = target.add_stream_from_template(stream)
+        for count, packet in enumerate(source.demux(stream)):
+            if packet.dts is None or (frames is not None and count >= frames):
+                continue
+            packet.stream = out
+            target.mux(packet)
+    return buffer.getvalue()
+
+
+class UdpSender:
+    """Sends MPEG-TS to 127.0.0.1 from a thread, repeating it until stopped (at most ``seconds``)."""
+
+    def __init__(self, payload, port, seconds=8.0):
+        self.payload, self.port, self.seconds = payload, port, seconds
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._send, daemon=True)
+
+    def _send(self):
+        deadline = time.monotonic() + self.seconds
+        chunk = 7 * 188   # whole TS packets per datagram
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            while not self.stop.is_set() and time.monotonic() < deadline:
+                for offset in range(0, len(self.payload), chunk):
+                    if self.stop.is_set():
+                        return
+                    sock.sendto(self.payload[offset:offset + chunk], ("127.0.0.1", self.port))
+                    if offset // chunk % 20 == 0:
+                        time.sleep(0.002)   # about real time: the receiver's buffer keeps up
+
+    def __enter__(self):
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.stop.set()
+        self.thread.join(5)

@@ -386,7 +386,7 @@ def process_video(source, target=None, detector=None, config=None, callback=None
         if target is not None:
             sink = stack.enter_context(VideoSink(
                 target, video.rate, video.size, codec, crf, preset, threads=plan.encoder,
-                time_base=video.time_base, colour=None if debug_view else video._first))
+                time_base=video.time_base, colour=None if debug_view else video.colour))
         if detections is not None:
             writer = stack.enter_context(DetectionWriter(detections, detections_format))
         warm_up = getattr(pipeline.detector, "warm_up", None)

@@ -137,10 +137,10 @@ class VideoSink(StagedFile):
         Encoder threads.
     time_base : Fraction, optional
         Unit of the ``pts`` given to :meth:`write` (default ``1 / fps``).
-    colour : av.VideoFrame, optional
-        A decoded frame whose colour tags (matrix, range) the output keeps,
-        so frames of that stream pass through unconverted.  Default: BT.601
-        limited range, what BGR frames are converted with.
+    colour : tuple of int, optional
+        The input's colour tags (:attr:`VideoSource.colour`), kept in the
+        output so that its decoded frames pass through unconverted.
+        Default: BT.601 limited range, what BGR frames are converted with.
 
     Raises
     ------
@@ -278,11 +278,13 @@ class VideoSink(StagedFile):
             container.close()
 
 
-def _colour_tags(frame):
-    """``(colorspace, range, primaries, transfer)`` to tag the output with."""
-    if frame is None or int(frame.colorspace) not in (_BT709,):
-        # BT.601 (SMPTE 170M) for converted BGR and for untagged or other inputs.
-        if frame is not None and int(frame.colorspace) == _UNSPECIFIED:
-            return (_UNSPECIFIED, _LIMITED_RANGE, _UNSPECIFIED, _UNSPECIFIED)
-        return (_SMPTE170M, _LIMITED_RANGE, _SMPTE170M, _SMPTE170M)
-    return (_BT709, _LIMITED_RANGE, _BT709, _BT709)
+def _colour_tags(colour):
+    """``(matrix, range, primaries, transfer)`` to tag the output with."""
+    matrix = None if colour is None else colour[0]
+    if matrix == _BT709:
+        return (_BT709, _LIMITED_RANGE, _BT709, _BT709)
+    if matrix == _UNSPECIFIED:
+        # Untagged input stays untagged: players then guess as they did for the input.
+        return (_UNSPECIFIED, _LIMITED_RANGE, _UNSPECIFIED, _UNSPECIFIED)
+    # BT.601 (SMPTE 170M) for converted BGR frames and for other inputs.
+    return (_SMPTE170M, _LIMITED_RANGE, _SMPTE170M, _SMPTE170M)

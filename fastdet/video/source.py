@@ -177,6 +177,10 @@ class VideoSource:
         live source or when unknown.
     live : bool
         A stream without an end (UDP, RTSP, TCP, a camera, ...).
+    colour : tuple of int
+        FFmpeg's colour matrix and range tags of the frames (``(1, 1)``:
+        BT.709, limited range), for a :class:`~fastdet.video.sink.VideoSink`
+        that passes decoded frames through.
 
     Raises
     ------
@@ -219,6 +223,7 @@ class VideoSource:
             self._container.close()
             raise
         self.size = (self._first.width, self._first.height)
+        self.colour = (int(self._first.colorspace), int(self._first.color_range))
         self._converter = FrameConverter()
         self._first_bgr = None
 

@@ -98,7 +98,7 @@ def test_decoded_frames_pass_through_with_their_timestamps_2997(tmp_path):
     out = tmp_path / "out.mp4"
     with VideoSource(source_path) as video:
         with VideoSink(out, video.rate, video.size, time_base=video.time_base,
-                       colour=video._first) as sink:
+                       colour=video.colour) as sink:
             for frame in video.decoded_frames():
                 sink.write(frame, frame.pts)
     with av.open(str(out)) as container:

@@ -12,14 +12,14 @@ import socket
 import threading
 import time
 
-import av
 import cv2
 import numpy as np
 import pytest
 
 from fastdet.errors import InputError
 from fastdet.video.source import FrameConverter, VideoSource
-from video_files import SIZE, frame_number, numbered_frame, write_clip
+from video_files import (SIZE, UdpSender, frame_number, free_port, mpegts_bytes,
+                         numbered_frame, write_clip)
 
 
 @pytest.fixture(scope="module")
@@ -193,70 +193,19 @@ def test_http_not_found_is_one_line(http_root):
 
 
 def test_refused_connection_is_one_line():
-    port = _free_port(socket.SOCK_STREAM)
+    port = free_port(socket.SOCK_STREAM)
     with pytest.raises(InputError, match=r"cannot open http://127.0.0.1:\d+/v.mp4: .*refused"):
         VideoSource(f"http://127.0.0.1:{port}/v.mp4", timeout=2)
 
 
 # -- UDP -----------------------------------------------------------------------------
-def _free_port(kind):
-    with socket.socket(socket.AF_INET, kind) as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
-
-
-def mpegts_bytes(path, frames=None):
-    """The video stream of ``path`` remuxed into MPEG-TS, in memory."""
-    import io
-
-    buffer = io.BytesIO()
-    with av.open(str(path)) as source, av.open(buffer, "w", format="mpegts") as target:
-        stream = source.streams.video[0]
-        out = target.add_stream_from_template(stream)
-        for count, packet in enumerate(source.demux(stream)):
-            if packet.dts is None or (frames is not None and count >= frames):
-                continue
-            packet.stream = out
-            target.mux(packet)
-    return buffer.getvalue()
-
-
-class UdpSender:
-    """Sends MPEG-TS to 127.0.0.1 from a thread, repeating it until stopped (at most ``seconds``)."""
-
-    def __init__(self, payload, port, seconds=8.0):
-        self.payload, self.port, self.seconds = payload, port, seconds
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._send, daemon=True)
-
-    def _send(self):
-        deadline = time.monotonic() + self.seconds
-        chunk = 7 * 188   # whole TS packets per datagram
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-            while not self.stop.is_set() and time.monotonic() < deadline:
-                for offset in range(0, len(self.payload), chunk):
-                    if self.stop.is_set():
-                        return
-                    sock.sendto(self.payload[offset:offset + chunk], ("127.0.0.1", self.port))
-                    if offset // chunk % 20 == 0:
-                        time.sleep(0.002)   # about real time: the receiver's buffer keeps up
-
-    def __enter__(self):
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc):
-        self.stop.set()
-        self.thread.join(5)
-
-
 @pytest.fixture(scope="module")
 def transport_stream(data_dir):
     return mpegts_bytes(data_dir / "test_video.mp4")
 
 
 def test_udp_stream_is_live_and_ends_when_the_sender_stops(transport_stream):
-    port = _free_port(socket.SOCK_DGRAM)
+    port = free_port(socket.SOCK_DGRAM)
     with UdpSender(transport_stream, port, seconds=3.0) as sender:
         started = time.monotonic()
         with VideoSource(f"udp://127.0.0.1:{port}", timeout=1.5) as video:
@@ -274,7 +223,7 @@ def test_udp_stream_is_live_and_ends_when_the_sender_stops(transport_stream):
 
 
 def test_silent_udp_source_times_out_in_one_line():
-    port = _free_port(socket.SOCK_DGRAM)
+    port = free_port(socket.SOCK_DGRAM)
     started = time.monotonic()
     with pytest.raises(InputError, match=r"cannot open udp://127.0.0.1:\d+: no data within"):
         VideoSource(f"udp://127.0.0.1:{port}", timeout=1.0)
