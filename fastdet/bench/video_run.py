@@ -47,10 +47,11 @@ _OPENCV_DECODE = r"""
 import json, sys, time
 import cv2
 capture = cv2.VideoCapture(sys.argv[1], cv2.CAP_FFMPEG, [cv2.CAP_PROP_N_THREADS, 1])
-frames, start = 0, time.perf_counter()
+frames, start, cpu = 0, time.perf_counter(), time.process_time()
 while capture.read()[0]:
     frames += 1
-print(json.dumps({"frames": frames, "seconds": time.perf_counter() - start}))
+print(json.dumps({"frames": frames, "seconds": time.perf_counter() - start,
+                  "cpu_seconds": time.process_time() - cpu}))
 """
 
 
@@ -129,12 +130,22 @@ def run_process(command, env=None):
 
 
 def opencv_decode_rate(path):
-    """OpenCV's single-thread decode-only frames per second of ``path`` (a fresh process)."""
+    """OpenCV's single-thread decoding of ``path`` in a fresh process.
+
+    Returns
+    -------
+    fps : float
+        Frames per second of the decoding loop (file opening excluded).
+    cpu_ms : float
+        CPU milliseconds per frame of that loop.
+    frames : int
+    """
     import json
 
     run = run_process([sys.executable, "-c", _OPENCV_DECODE, str(path)])
     result = json.loads(run.stdout.strip().splitlines()[-1])
-    return result["frames"] / result["seconds"], result["frames"]
+    frames = result["frames"]
+    return frames / result["seconds"], result["cpu_seconds"] * 1e3 / frames, frames
 
 
 _SUMMARY = re.compile(r"^(?:interrupted after )?(?P<frames>\d+) frames.*ms/frame: "
@@ -180,6 +191,7 @@ class VideoBenchmark:
     video: Path
     frames: int
     opencv_fps: list
+    opencv_cpu_ms: list
     modes: list
     load_before: tuple
     load_after: tuple
@@ -211,11 +223,12 @@ def video_benchmark(source, rounds=3, threads=None, modes=MODES, rss=True, log=N
     log = log or (lambda line: None)
     video = looped_video(source)
     results = [ModeResult(label, target) for label, _, target in modes]
-    opencv, frames = [], LOOPED_FRAMES
+    opencv, opencv_cpu, frames = [], [], LOOPED_FRAMES
     load_before = os.getloadavg()
     for round_number in range(1, rounds + 1):
-        rate, frames = opencv_decode_rate(video)
+        rate, cpu_ms, frames = opencv_decode_rate(video)
         opencv.append(rate)
+        opencv_cpu.append(cpu_ms)
         log(f"round {round_number}/{rounds}: OpenCV decodes at {rate:.1f} fps")
         for result, (_, options, _) in zip(results, modes):
             run, done, stages, bound = fastdet_run(video, options, threads)
@@ -227,7 +240,8 @@ def video_benchmark(source, rounds=3, threads=None, modes=MODES, rss=True, log=N
             result.cpu_per_frame_ms.append(run.cpu * 1e3 / done)
             result.peak_rss_mib.append(run.peak_rss_mib)
             log(f"  {result.label}: {fps:.1f} fps = {fps / rate:.2f} R")
-    benchmark = VideoBenchmark(video, frames, opencv, results, load_before, os.getloadavg())
+    benchmark = VideoBenchmark(video, frames, opencv, opencv_cpu, results, load_before,
+                               os.getloadavg())
     if rss:
         annotated = modes[0][1]
         benchmark.rss_short_mib = fastdet_run(source, annotated, threads)[0].peak_rss_mib
@@ -235,21 +249,32 @@ def video_benchmark(source, rounds=3, threads=None, modes=MODES, rss=True, log=N
     return benchmark
 
 
-def format_video_benchmark(benchmark):
-    """Markdown: the modes against R and their targets, the stages, the peak RSS."""
+def format_video_benchmark(benchmark, cores=None):
+    """Markdown: the modes against R and their targets, the stages, the peak RSS.
+
+    Besides the measured ratio, each mode's *CPU ceiling* is the ratio it would
+    reach if the run's CPU time per frame were spread perfectly over ``cores``
+    idle cores, against OpenCV's CPU time per frame: ``cores * OpenCV CPU ms /
+    fastdet CPU ms``.  CPU time hardly changes with the machine's load, so on a
+    shared machine it tells what a quiet one would show (start-up included).
+    """
+    cores = cores or os.cpu_count() or 1
     rate = statistics.median(benchmark.opencv_fps)
+    opencv_ms = statistics.median(benchmark.opencv_cpu_ms)
     lines = [f"Input: {benchmark.video} ({benchmark.frames} frames). R = OpenCV single-thread "
              f"decode-only rate, median {rate:.1f} fps over {len(benchmark.opencv_fps)} rounds "
-             f"({', '.join(f'{r:.0f}' for r in benchmark.opencv_fps)}). Load average "
+             f"({', '.join(f'{r:.0f}' for r in benchmark.opencv_fps)}), "
+             f"{opencv_ms:.2f} CPU ms per frame. Load average "
              f"{benchmark.load_before[0]:.2f} before, {benchmark.load_after[0]:.2f} after.", "",
              "| mode | fps (whole process, median) | x R (median of paired rounds) | target | "
-             "met | CPU ms/frame (process) | bound by |",
-             "|---|---:|---:|---:|:---:|---:|---|"]
+             f"met | CPU ms/frame (process) | CPU ceiling on {cores} cores, x R | bound by |",
+             "|---|---:|---:|---:|:---:|---:|---:|---|"]
     for mode in benchmark.modes:
         bound = statistics.mode(b for b in mode.bounds if b) if any(mode.bounds) else "-"
+        cpu_ms = statistics.median(mode.cpu_per_frame_ms)
         lines.append(f"| {mode.label} | {statistics.median(mode.fps):.1f} | {mode.ratio:.2f} | "
                      f"{mode.target:.2f} | {'yes' if mode.ratio >= mode.target else 'no'} | "
-                     f"{statistics.median(mode.cpu_per_frame_ms):.1f} | {bound} |")
+                     f"{cpu_ms:.1f} | {cores * opencv_ms / cpu_ms:.2f} | {bound} |")
     lines += ["", "CPU ms per frame of each stage's thread (median over rounds; 'codec "
               "threads' are FFmpeg's, x264's and the detector pool's own threads):", "",
               "| mode | " + " | ".join(_stage_names(benchmark)) + " |",

@@ -162,5 +162,5 @@ def _video_benchmark(args, log):
     benchmark = video_benchmark(args.input or data_dir() / "test_video.mp4",
                                 rounds=args.rounds or 3, threads=threads, log=log)
     print("\n## fastdet run throughput\n")
-    print(format_video_benchmark(benchmark))
+    print(format_video_benchmark(benchmark, threads))
     return 0

@@ -197,6 +197,9 @@ class VideoSink(StagedFile):
         (context.colorspace, context.color_range, context.color_primaries,
          context.color_trc) = tags
         context.open()  # fail now, before any frame, on a bad size or option
+        if context.options:
+            # FFmpeg leaves the options it did not understand here, silently otherwise.
+            raise ValueError(f"the encoder ignores {', '.join(sorted(context.options))}")
         self._stream = stream
 
     # -- writing --------------------------------------------------------------------
