@@ -23,11 +23,20 @@ Stopping
 
 from __future__ import annotations
 
-import math
+import contextlib
 import queue
+import signal
 import threading
 import time
 from dataclasses import dataclass, field
+
+import numpy as np
+from av.video.reformatter import VideoReformatter
+
+from ..detector.scoring import STAGES
+from ..errors import InputError
+from ..viz.draw import debug_frame, draw_detections_yuv420
+from .source import FrameConverter, plane_view
 
 #: Frames each queue holds: enough to ride out one slow frame, few enough for flat memory.
 QUEUE_FRAMES = 4
@@ -242,3 +251,139 @@ class Conveyor:
             self.times.process_cpu = time.process_time() - cpu
         if self._errors:
             raise self._errors[0]
+
+
+# -- the stages of a run -------------------------------------------------------------
+_BT709 = 1   # FFmpeg's tag of the BT.709 colour matrix
+
+
+def _debug_view(frame, detections, pipeline):
+    """The frame with boxes, the live heat map inset and the detector's stage timings."""
+    heat = np.zeros(frame.shape[:2], np.float32)
+    if pipeline.last_heat is not None:
+        region, (x0, y0) = pipeline.last_heat
+        h = min(region.shape[0], heat.shape[0] - y0)
+        w = min(region.shape[1], heat.shape[1] - x0)
+        if h > 0 and w > 0:
+            heat[y0:y0 + h, x0:x0 + w] = region[:h, :w]
+    timings = pipeline.detector.timings
+    timings_ms = {stage: 1e3 * timings[stage] for stage in STAGES if stage in timings}
+    # A fixed scale keeps the inset's brightness from pumping with each frame's peak.
+    scale = 4 * pipeline.detector.config.heat.threshold or None
+    return debug_frame(frame, detections, heat, timings_ms, heat_max=scale)
+
+
+def decode(clock, conveyor, source, outbox, realtime, stats):
+    """Decoded frames onto ``outbox``; with ``realtime``, never wait: drop the oldest."""
+    frames = source.decoded_frames()
+    paced = realtime and not source.live
+    started = first_pts = None
+    try:
+        for index, frame in enumerate(frames, source.start):
+            if conveyor.stopping.is_set():
+                break
+            if paced and frame.pts is not None:
+                # A file read "live": at its own frame rate.
+                started = time.perf_counter() if started is None else started
+                first_pts = frame.pts if first_pts is None else first_pts
+                delay = started + float((frame.pts - first_pts) * source.time_base)
+                while not conveyor.stopping.is_set() and time.perf_counter() < delay:
+                    time.sleep(min(0.01, delay - time.perf_counter()))
+            if realtime:
+                stats.dropped += _put_newest(outbox, (index, frame))
+            else:
+                conveyor.put(outbox, (index, frame), clock)
+    except InputError as exc:
+        # The input broke off: every frame before it is good and goes to the outputs.
+        stats.ended = str(exc)
+    finally:
+        frames.close()
+    stats.ended = stats.ended or source.ended
+    conveyor.put(outbox, END, clock)
+
+
+def _put_newest(outbox, item):
+    """Put ``item`` without waiting, dropping the oldest queued frame if full; frames dropped."""
+    dropped = 0
+    while True:
+        try:
+            outbox.put_nowait(item)
+            return dropped
+        except queue.Full:
+            with contextlib.suppress(queue.Empty):
+                outbox.get_nowait()
+                dropped += 1
+
+
+def detect(clock, conveyor, inbox, outboxes, pipeline, rows, debug_view, first_output, stats):
+    """Detection and tracking, in frame order; warm-up frames only update the state."""
+    converter = FrameConverter()
+    while True:
+        item = conveyor.get(inbox, clock)
+        if item is END:
+            break
+        index, frame = item
+        bgr = None
+        if debug_view or pipeline.wants_frame:
+            bgr = converter.to_bgr(frame, None if debug_view else rows)
+        try:
+            detections = pipeline.process(bgr)
+        except KeyboardInterrupt:
+            # Raised on this thread (e.g. by a callback of the caller's pipeline):
+            # a stop like Ctrl-C; the frames before it still reach the outputs.
+            stats.interrupted = stats.interrupted or signal.SIGINT
+            conveyor.stop()
+            break
+        if index < first_output:
+            continue
+        picture = _debug_view(bgr, detections, pipeline) if debug_view else None
+        for outbox in outboxes:
+            conveyor.put(outbox, (index, frame, picture, detections), clock)
+    stats.full_searches = pipeline.full_searches
+    stats.seconds = dict(pipeline.seconds)
+    for outbox in outboxes:
+        conveyor.put(outbox, END, clock)
+
+
+def encode(clock, conveyor, inbox, sink):
+    """Boxes drawn on the decoded planes (or the debug picture), encoded in order."""
+    reformatter = VideoReformatter()
+    first_pts = None
+    while True:
+        item = conveyor.get(inbox, clock)
+        if item is END:
+            return
+        _, frame, picture, detections = item
+        pts = None
+        if frame.pts is not None:
+            first_pts = frame.pts if first_pts is None else first_pts
+            pts = frame.pts - first_pts
+        if picture is not None:
+            sink.write(picture, pts)
+            continue
+        if frame.format.name != "yuv420p":
+            frame = reformatter.reformat(frame, format="yuv420p", threads=1)
+        if len(detections):
+            # The decoder may still read this picture as a reference: draw on a copy.
+            frame.make_writable()
+            draw_detections_yuv420(plane_view(frame, 0), plane_view(frame, 1),
+                                   plane_view(frame, 2), detections,
+                                   bt709=int(frame.colorspace) == _BT709)
+        sink.write(frame, pts)
+
+
+def report(clock, conveyor, inbox, writer, callback, stats):
+    """The detections file, the caller's callback and the counts, in frame order."""
+    while True:
+        item = conveyor.get(inbox, clock)
+        if item is END:
+            return
+        index, _, _, detections = item
+        if writer is not None:
+            writer.write(index, detections)
+        if callback is not None:
+            callback(index, detections)
+        stats.frames += 1
+        stats.boxes += len(detections)
+        if detections.track_id is not None:
+            stats.track_ids.update(detections.track_id.tolist())

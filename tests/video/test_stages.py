@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from fastdet.video.run import _put_newest
+from fastdet.video.stages import _put_newest
 from fastdet.video.stages import END, Conveyor, plan_threads
 
 
