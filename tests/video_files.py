@@ -24,16 +24,21 @@ def frame_number(frame):
 
 
 def write_clip(path, frames, fps=12.0, size=SIZE, times=None):
-    """An H.264 mp4 of ``numbered_frame(i)``; ``times`` (seconds) makes it variable-rate."""
+    """An H.264 mp4 of ``numbered_frame(i)``; ``times`` (seconds) makes it variable-rate.
+
+    Odd sizes are stored as yuv444p, the only way libx264 takes them.
+    """
     rate = Fraction(fps).limit_denominator(100000)
     time_base = Fraction(1, 90000) if times is not None else 1 / rate
     with av.open(str(path), "w") as container:
         stream = container.add_stream("libx264", rate=rate, options={"preset": "ultrafast"})
-        stream.width, stream.height, stream.pix_fmt = size[0], size[1], "yuv420p"
+        odd = size[0] % 2 or size[1] % 2
+        pix_fmt = "yuv444p" if odd else "yuv420p"
+        stream.width, stream.height, stream.pix_fmt = size[0], size[1], pix_fmt
         stream.codec_context.time_base = time_base
         for i in range(frames):
             frame = av.VideoFrame.from_ndarray(numbered_frame(i, size), format="bgr24")
-            frame = frame.reformat(format="yuv420p")
+            frame = frame.reformat(format=pix_fmt)
             frame.pts = i if times is None else round(times[i] / time_base)
             frame.time_base = time_base
             container.mux(stream.encode(frame))

@@ -24,6 +24,7 @@ Stopping
 from __future__ import annotations
 
 import contextlib
+import math
 import queue
 import signal
 import threading
@@ -86,15 +87,21 @@ def plan_threads(cores, video=True, search_fraction=1.0):
     -------
     ThreadPlan
         Each part's share of the cores is its share of the per-frame CPU time,
-        rounded, and at least one thread: with 2 cores and ``--every 5`` the
-        decoder, most of the work, gets both and the detector (mostly idle) one.
+        rounded, and at least one thread; the heaviest part, which bounds the
+        run, gets its share rounded up.  On 2 cores: decoder, detector and
+        encoder one each with a video output; without one, the detector two
+        (every frame searched) or the decoder two (``--every 5``).  Measured on
+        the 2-core development machine (README, "Video").
     """
     cores = max(1, int(cores))
     loads = {"decoder": _DECODE_MS, "detector": _SEARCH_MS * max(search_fraction, 0.05),
              "encoder": _ENCODE_MS if video else 0.0}
     total = sum(loads.values())
-    threads = {name: max(1, round(cores * load / total)) if load else 0
-               for name, load in loads.items()}
+    shares = {name: cores * load / total for name, load in loads.items()}
+    threads = {name: max(1, round(share)) if share else 0 for name, share in shares.items()}
+    # The heaviest part bounds the run: it may also use what the others leave idle.
+    heaviest = max(shares, key=shares.get)
+    threads[heaviest] = max(threads[heaviest], math.ceil(shares[heaviest]))
     return ThreadPlan(cores, threads["decoder"], threads["detector"], threads.get("encoder", 0))
 
 

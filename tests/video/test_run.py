@@ -183,3 +183,15 @@ def test_a_second_signal_aborts_and_leaves_nothing(data_dir, tmp_path):
          str(tmp_path / "dets.jsonl"), "--realtime"], tmp_path, [signal.SIGINT, signal.SIGINT])
     assert returncode == 130, stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("size", [(853, 480), (1281, 721)])
+def test_odd_sized_input_is_padded_through_the_pipeline(tmp_path, size):
+    from video_files import frame_number, write_clip
+
+    clip = write_clip(tmp_path / "odd.mp4", 5, fps=25.0, size=size)
+    process_video(clip, tmp_path / "out.mp4", VideoPipeline(BlockDetector()),
+                  detections=tmp_path / "d.jsonl")
+    with VideoSource(tmp_path / "out.mp4") as video:
+        assert video.size == (size[0] + size[0] % 2, size[1] + size[1] % 2)
+        assert [frame_number(f[:size[1], :size[0]]) for f in video] == list(range(5))
