@@ -141,9 +141,21 @@ def test_realtime_drops_frames_when_processing_falls_behind(data_dir, tmp_path):
 
 
 # -- signals, on a real process -----------------------------------------------------------
-def run_and_signal(args, folder, signals, gap=0.05):
-    """Start ``fastdet run``, wait for its first detection line, send ``signals``; its result."""
-    command = [sys.executable, "-m", "fastdet.cli.app", "run", *args, "--quiet"]
+#: ``fastdet run`` with each frame's processing slowed to 0.1 s, so that a run is still going,
+#: and still draining its queues after a first signal, when the test sends its signals.
+SLOW_RUN = """
+import sys, time
+from fastdet.video.pipeline import VideoPipeline
+process = VideoPipeline.process
+VideoPipeline.process = lambda self, frame: time.sleep(0.1) or process(self, frame)
+from fastdet.cli.app import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def run_and_signal(args, folder, signals, gap=0.3):
+    """Start a slowed ``fastdet run``, wait for its first detection line, send ``signals``."""
+    command = [sys.executable, "-c", SLOW_RUN, "run", *args, "--quiet"]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True, env=env, cwd=ROOT)
@@ -164,10 +176,9 @@ def run_and_signal(args, folder, signals, gap=0.05):
 @pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_a_signal_completes_both_outputs(data_dir, tmp_path, signum, code):
     out, dets = tmp_path / "out.mp4", tmp_path / "dets.jsonl"
-    # --realtime reads the file at 25 fps, so the run is still going when the signal comes.
     returncode, stdout, stderr = run_and_signal(
-        [str(data_dir / "test_video.mp4"), "--out", str(out), "--detections", str(dets),
-         "--realtime"], tmp_path, [signum])
+        [str(data_dir / "test_video.mp4"), "--out", str(out), "--detections", str(dets)],
+        tmp_path, [signum])
     assert returncode == code, stderr
     assert stdout.startswith("interrupted after ")
     lines = dets.read_text().splitlines()
@@ -178,10 +189,11 @@ def test_a_signal_completes_both_outputs(data_dir, tmp_path, signum, code):
 
 
 def test_a_second_signal_aborts_and_leaves_nothing(data_dir, tmp_path):
-    returncode, _, stderr = run_and_signal(
+    returncode, stdout, stderr = run_and_signal(
         [str(data_dir / "test_video.mp4"), "--out", str(tmp_path / "out.mp4"), "--detections",
-         str(tmp_path / "dets.jsonl"), "--realtime"], tmp_path, [signal.SIGINT, signal.SIGINT])
+         str(tmp_path / "dets.jsonl")], tmp_path, [signal.SIGINT, signal.SIGINT])
     assert returncode == 130, stderr
+    assert stdout == "" and stderr == "fastdet: interrupted\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
