@@ -295,10 +295,9 @@ class VideoSource:
         # Reading a frame is the only reliable test of "has frames": headers
         # may be missing or wrong.
         for frame in self._decoded:
-            self._index += 1
-            if self._index > self.start:
-                self._index -= 1
+            if self._index == self.start:
                 return frame
+            self._index += 1
         if self.start == 0:
             raise InputError(f"{self.name} holds no frames")
         total = "" if self.frame_count is None else f" ({self.frame_count} frames)"

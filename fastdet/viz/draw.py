@@ -77,7 +77,8 @@ def draw_detections_yuv420(luma, u, v, detections, bt709=False, thickness=3):
         Colours by the BT.709 matrix (HD video) instead of BT.601.
     thickness : int
     """
-    font, half = cv2.FONT_HERSHEY_SIMPLEX, max(1, thickness // 2)
+    # Chroma lines two luma pixels per chroma pixel wide: as wide as the luma line.
+    font, half = cv2.FONT_HERSHEY_SIMPLEX, max(1, thickness - 1)
     for (x1, y1, x2, y2), colour, label in _labelled_boxes(detections):
         y_value, u_value, v_value = bgr_to_yuv(colour, bt709)
         origin = (x1, max(y1 - 6, 12))
