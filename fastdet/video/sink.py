@@ -32,7 +32,7 @@ from av.video.reformatter import VideoReformatter
 
 from ..errors import InputError
 from ..files.atomic import StagedFile
-from .source import plane_view
+from .frame_arrays import plane_view
 
 #: ``--codec`` names and the FFmpeg encoder behind each.
 ENCODERS = {"h264": "libx264", "hevc": "libx265", "av1": "libsvtav1", "vp9": "libvpx-vp9",

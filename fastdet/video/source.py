@@ -11,7 +11,7 @@ within the timeout, ``start`` past the end) is reported as one
 Decoding uses FFmpeg's own threads; the frames come out as BGR uint8
 arrays (OpenCV's convention, the same pixels ``cv2.VideoCapture`` gives) or,
 for the pipelined run, as decoded ``av.VideoFrame`` objects that
-:class:`FrameConverter` turns into BGR, whole or only the rows the detector
+:class:`~fastdet.video.frame_arrays.FrameConverter` turns into BGR, whole or only the rows the detector
 searches.
 """
 
@@ -24,10 +24,10 @@ from pathlib import Path
 from urllib.parse import urlparse
 
 import av
-import numpy as np
-from av.video.reformatter import VideoReformatter
 
 from ..errors import InputError
+from .frame_arrays import FrameConverter
+from .seek import REORDER_SLACK, seek_point
 
 #: Frame rate assumed when a video states none.
 FALLBACK_FPS = 25.0
@@ -88,58 +88,6 @@ def frame_rate(stream):
     return None
 
 
-class FrameConverter:
-    """Decoded frames to BGR uint8 arrays, with its own swscale context (one per thread).
-
-    ``to_bgr(frame, rows=(y0, y1))`` converts only those rows and returns a
-    full-size array whose other rows are left uninitialised: the detector
-    reads only the rows its scales search, so the rest of a frame need not
-    be converted.  Converted rows are the same pixels as a full conversion.
-    """
-
-    def __init__(self):
-        self._reformatter = VideoReformatter()
-
-    def to_bgr(self, frame, rows=None):
-        """BGR uint8 ``(height, width, 3)`` of an ``av.VideoFrame``.
-
-        Parameters
-        ----------
-        frame : av.VideoFrame
-        rows : tuple of int, optional
-            ``(y0, y1)``: convert only these rows (of a yuv420p frame).
-        """
-        if rows is None or frame.format.name != "yuv420p":
-            return self._reformatter.reformat(frame, format="bgr24", threads=1).to_ndarray()
-        # Chroma rows cover two luma rows each: widen the band to even rows.
-        y0, y1 = max(0, rows[0] - rows[0] % 2), min(frame.height, rows[1] + rows[1] % 2)
-        image = np.empty((frame.height, frame.width, 3), np.uint8)
-        if y1 <= y0:
-            return image
-        band = _yuv420p_rows(frame, y0, y1)
-        image[y0:y1] = self._reformatter.reformat(band, format="bgr24", threads=1).to_ndarray()
-        return image
-
-
-def plane_view(frame, index):
-    """Plane ``index`` of an ``av.VideoFrame`` as a ``(rows, width)`` uint8 view (no copy)."""
-    plane = frame.planes[index]
-    return np.frombuffer(plane, np.uint8).reshape(plane.height, plane.line_size)[:, :plane.width]
-
-
-def _yuv420p_rows(frame, y0, y1):
-    """Rows ``[y0, y1)`` of a yuv420p frame as a new frame with the same colour tags."""
-    height = y1 - y0
-    band = av.VideoFrame(frame.width, height, "yuv420p")
-    c0, c1 = y0 // 2, (y1 + 1) // 2
-    for index, (start, stop) in enumerate(((y0, y1), (c0, c1), (c0, c1))):
-        source = plane_view(frame, index)[start:stop]
-        target = plane_view(band, index)
-        target[:source.shape[0]] = source
-    band.colorspace, band.color_range = frame.colorspace, frame.color_range
-    return band
-
-
 class VideoSource:
     """Frames of a video file, network stream or camera, decoded one at a time.
 
@@ -149,8 +97,10 @@ class VideoSource:
         A file, an ``http(s)://``, ``rtsp://``, ``udp://`` or ``tcp://`` URL,
         a camera device ``/dev/videoN`` or a camera index ``N``.
     start : int
-        Index of the first frame to yield (frames count from 0).  Earlier
-        frames are decoded and dropped, so indices stay exact for any stream.
+        Index of the first frame to yield (frames count from 0).  A file is
+        decoded from the keyframe before it, found from its packets and
+        checked frame by frame (:mod:`.seek`); anything else, and any file
+        where a check fails, from the beginning: indices are exact either way.
     end : int, optional
         Index one past the last frame to yield; the stream's end by default.
     threads : int, optional
@@ -210,14 +160,10 @@ class VideoSource:
         if self.kind == "file":
             self._check_file()
         options = _protocol_options(url, timeout) if self.kind == "network" else {}
+        self._open_arguments = (url, fmt, options, None if timeout is None else (timeout, timeout))
+        self._threads = threads
+        self._open()
         try:
-            self._container = av.open(url, format=fmt, options=options,
-                                      timeout=None if timeout is None else (timeout, timeout))
-        except (av.error.FFmpegError, OSError) as exc:
-            raise InputError(self._open_failure(exc)) from None
-        try:
-            self._open_stream(threads)
-            self._decoded = self._frames_from_container()
             self._first = self._read_first()
         except BaseException:
             self._container.close()
@@ -228,6 +174,19 @@ class VideoSource:
         self._first_bgr = None
 
     # -- opening --------------------------------------------------------------------
+    def _open(self):
+        url, fmt, options, timeout = self._open_arguments
+        try:
+            self._container = av.open(url, format=fmt, options=options, timeout=timeout)
+        except (av.error.FFmpegError, OSError) as exc:
+            raise InputError(self._open_failure(exc)) from None
+        try:
+            self._open_stream(self._threads)
+        except BaseException:
+            self._container.close()
+            raise
+        self._decoded = self._frames_from_container()
+
     def _check_file(self):
         path = self.path
         if not path.exists():
@@ -294,6 +253,12 @@ class VideoSource:
     def _read_first(self):
         # Reading a frame is the only reliable test of "has frames": headers
         # may be missing or wrong.
+        if self.kind == "file" and self.start > REORDER_SLACK:
+            frame = self._seek_to_start()
+            if frame is not None:
+                return frame
+            self._container.close()   # decode from the beginning instead
+            self._open()
         for frame in self._decoded:
             if self._index == self.start:
                 return frame
@@ -302,6 +267,30 @@ class VideoSource:
             raise InputError(f"{self.name} holds no frames")
         total = "" if self.frame_count is None else f" ({self.frame_count} frames)"
         raise InputError(f"--start {self.start} is past the end of {self.name}{total}")
+
+    def _seek_to_start(self):
+        """Frame ``start`` decoded from the keyframe before it, or None if unsure (see seek)."""
+        point = seek_point(self._container, self._stream, self.start)
+        if point is None:
+            return None
+        try:
+            self._container.seek(point.keyframe_pts, stream=self._stream, backward=True,
+                                 any_frame=False)
+        except (av.error.FFmpegError, OSError):
+            return None
+        self._decoded = self._frames_from_container()
+        expected = iter(point.expected_pts)
+        index = point.keyframe_index
+        for frame in self._decoded:
+            if frame.pts is not None and frame.pts < point.keyframe_pts:
+                continue   # leading pictures of an open GOP: they belong before the keyframe
+            if frame.pts != next(expected, None):
+                return None
+            if index == self.start:
+                self._index = index
+                return frame
+            index += 1
+        return None
 
     # -- frames ---------------------------------------------------------------------
     @property

@@ -37,7 +37,7 @@ from av.video.reformatter import VideoReformatter
 from ..detector.scoring import STAGES
 from ..errors import InputError
 from ..viz.draw import debug_frame, draw_detections_yuv420
-from .source import FrameConverter, plane_view
+from .frame_arrays import FrameConverter, plane_view
 
 #: Frames each queue holds: enough to ride out one slow frame, few enough for flat memory.
 QUEUE_FRAMES = 4

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from fastdet.errors import InputError
-from fastdet.video.source import FrameConverter, VideoSource
+from fastdet.video.frame_arrays import FrameConverter
+from fastdet.video.source import VideoSource
 from video_files import (SIZE, UdpSender, frame_number, free_port, mpegts_bytes,
                          numbered_frame, write_clip)
 
@@ -228,3 +229,42 @@ def test_silent_udp_source_times_out_in_one_line():
     with pytest.raises(InputError, match=r"cannot open udp://127.0.0.1:\d+: no data within"):
         VideoSource(f"udp://127.0.0.1:{port}", timeout=1.0)
     assert time.monotonic() - started < 10
+
+
+# -- exact seeking -------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def gop_clip(tmp_path_factory):
+    """120 numbered frames with a keyframe every 12 and B-frames (decode order != display)."""
+    path = tmp_path_factory.mktemp("gop") / "gop.mp4"
+    return write_clip(path, 120, fps=25.0, options={"preset": "medium", "g": "12",
+                                                    "bf": "3", "keyint_min": "12"})
+
+
+@pytest.mark.parametrize("start", [65, 72, 73, 83, 119])
+def test_a_late_start_seeks_to_the_keyframe_before_it_exactly(gop_clip, start, monkeypatch):
+    from fastdet.video import source as source_module
+
+    decoded_from = []
+    seek = source_module.VideoSource._seek_to_start
+
+    def recorded(self):
+        frame = seek(self)
+        decoded_from.append(frame is not None)
+        return frame
+
+    monkeypatch.setattr(source_module.VideoSource, "_seek_to_start", recorded)
+    with VideoSource(gop_clip) as full, VideoSource(gop_clip, start=start, end=start + 5) as part:
+        expected = list(full)[start:start + 5]
+        got = list(part)
+    assert decoded_from == [True]                        # it did seek ...
+    assert len(got) == len(expected)                     # ... and landed exactly
+    assert all(np.array_equal(a, b) for a, b in zip(got, expected))
+    assert [frame_number(f) for f in got] == list(range(start, min(start + 5, 120)))
+
+
+def test_a_seek_that_cannot_be_checked_decodes_from_the_start(gop_clip, monkeypatch):
+    from fastdet.video import source as source_module
+
+    monkeypatch.setattr(source_module, "seek_point", lambda *args: None)
+    with VideoSource(gop_clip, start=100) as video:
+        assert [frame_number(f) for f in video] == list(range(100, 120))
