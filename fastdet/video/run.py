@@ -59,8 +59,6 @@ class RunStats:
     dropped: int = 0
     #: Why the input ended early or a live stream stopped (``None``: it ended normally).
     ended: str | None = None
-    #: Wall seconds in the detector and in the temporal logic, on the detect stage's thread.
-    seconds: dict = field(default_factory=lambda: {"detect": 0.0, "track": 0.0})
     times: StageTimes = field(default_factory=StageTimes)
     plan: ThreadPlan | None = None
 
@@ -162,7 +160,7 @@ def process_video(source, target=None, detector=None, config=None, callback=None
         Default: the bundled model with ``config``'s settings.
     config : str, Path, TrackConfig or DetectorConfig, optional
         A TOML file (its detector sections and ``[track]``), or one of the
-        two settings objects.
+        two settings objects; a ``VideoPipeline`` brings its own.
     callback : callable, optional
         ``callback(frame_index, detections)`` for every output frame, in
         order, on the output thread.

@@ -347,7 +347,6 @@ def detect(clock, conveyor, inbox, outboxes, pipeline, rows, debug_view, first_o
         for outbox in outboxes:
             conveyor.put(outbox, (index, frame, picture, detections), clock)
     stats.full_searches = pipeline.full_searches
-    stats.seconds = dict(pipeline.seconds)
     for outbox in outboxes:
         conveyor.put(outbox, END, clock)
 
