@@ -171,7 +171,8 @@ class VideoSink(StagedFile):
         self._last_pts = None
         self._reformatter = VideoReformatter()
         tags = _colour_tags(colour)
-        self._bt601 = tags[0] != _BT709
+        #: Whether the output is tagged with (and BGR frames converted by) the BT.709 matrix.
+        self.bt709 = tags[0] == _BT709
         try:
             self._open(container_format, options, threads, tags)
         except (av.error.FFmpegError, OSError, ValueError) as exc:
@@ -241,7 +242,7 @@ class VideoSink(StagedFile):
             raise InputError(f"frame of shape {frame.shape} does not fit a "
                              f"{self.size[0]}x{self.size[1]} video")
         frame = pad_to_even(frame)
-        if self._bt601:
+        if not self.bt709:
             # OpenCV's conversion is BT.601 limited range, several times faster than swscale's.
             yuv = cv2.cvtColor(frame, cv2.COLOR_BGR2YUV_I420)
             return av.VideoFrame.from_numpy_buffer(yuv, format="yuv420p")

@@ -261,9 +261,6 @@ class Conveyor:
 
 
 # -- the stages of a run -------------------------------------------------------------
-_BT709 = 1   # FFmpeg's tag of the BT.709 colour matrix
-
-
 def _debug_view(frame, detections, pipeline):
     """The frame with boxes, the live heat map inset and the detector's stage timings."""
     heat = np.zeros(frame.shape[:2], np.float32)
@@ -368,13 +365,14 @@ def encode(clock, conveyor, inbox, sink):
             sink.write(picture, pts)
             continue
         if frame.format.name != "yuv420p":
-            frame = reformatter.reformat(frame, format="yuv420p", threads=1)
+            # E.g. a camera's full-range yuvj420p: to what the encoder takes.
+            frame = reformatter.reformat(frame, format="yuv420p", dst_color_range="MPEG",
+                                         threads=1)
         if len(detections):
             # The decoder may still read this picture as a reference: draw on a copy.
             frame.make_writable()
             draw_detections_yuv420(plane_view(frame, 0), plane_view(frame, 1),
-                                   plane_view(frame, 2), detections,
-                                   bt709=int(frame.colorspace) == _BT709)
+                                   plane_view(frame, 2), detections, bt709=sink.bt709)
         sink.write(frame, pts)
 
 
