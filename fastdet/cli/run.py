@@ -12,6 +12,7 @@ far (exit status 130 or 143); a second one aborts at once, leaving no output.
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 from urllib.parse import urlparse
@@ -30,8 +31,6 @@ def add_run_parser(subparsers):
     argparse.ArgumentParser
         The ``run`` parser; its ``handler`` default is :func:`cmd_run`.
     """
-    import argparse
-
     run = subparsers.add_parser(
         "run", help="detect and track vehicles in a video, stream or camera",
         description="Detect and track vehicles in a video file, a stream (http(s)://, rtsp://, "
@@ -196,6 +195,8 @@ def cmd_run(args):
             raise InputError(f"output {output} would overwrite the input video")
     if out is not None and detections_path is not None and _same_file(out, detections_path):
         raise InputError("--out and --detections name the same file")
+    if args.timeout <= 0:
+        raise InputError(f"--timeout must be positive, got {args.timeout}")
     # Problems with the input, then with the model or config, then with the
     # outputs: each is reported before any output file exists.
     plan = _plan(args, _track_config(args))
