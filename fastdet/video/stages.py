@@ -112,7 +112,6 @@ class StageClock:
     cpu: float = 0.0
     starved: float = 0.0   # waiting for input
     blocked: float = 0.0   # waiting for room downstream
-    wall: float = 0.0
 
 
 @dataclass
@@ -195,7 +194,7 @@ class Conveyor:
         clock = self.times.stages[name] = StageClock()
 
         def body():
-            cpu, wall = time.thread_time(), time.perf_counter()
+            cpu = time.thread_time()
             try:
                 function(clock, *args)
             except Aborted:
@@ -207,7 +206,6 @@ class Conveyor:
                 if inbox is not None:
                     self._unread.add(id(inbox))
                 clock.cpu = time.thread_time() - cpu
-                clock.wall = time.perf_counter() - wall
 
         self._threads.append(threading.Thread(target=body, name=f"fastdet-{name}", daemon=True))
 
