@@ -1,4 +1,12 @@
-"""Video end to end: decode the shared test video and run the video pipeline.
+"""Video end to end: the main job's throughput, and the video pipeline over the test clip.
+
+``FastdetRun`` times whole ``fastdet run`` processes per mode on a 1000-frame
+H.264 input (the test clip looped forward and back, made once) against
+OpenCV's single-thread decode-only rate R of the same file, measured in the
+same rounds (``fastdet.bench.video_run``; ``fastdet bench --video`` prints the
+same figures as a table): frames per second, the ratio to R, and the peak RSS
+on the 1000-frame input relative to the 38-frame clip.
+
 
 Frames per second of ``fastdet.VideoPipeline`` (``fastdet.video.pipeline``) over all 38
 frames of ``test_video.mp4``, decoding included (writing excluded), with
@@ -15,9 +23,10 @@ import time
 import numba
 
 import fastdet
+from fastdet.bench.video_run import MODES, video_benchmark
 from fastdet.detector.detector import Detector
 
-from ._common import bench_model, video_path
+from ._common import bench_model, skip_if_missing, skip_reason, video_path
 
 #: Track settings by asv label (keyword arguments of ``TrackConfig``).
 TRACK_SETTINGS = {"detect every frame": {}, "detect every 5th": {"every": 5},
@@ -39,21 +48,18 @@ def video_pipeline_api():
 
 
 def decoded_frames(path, skip=None):
-    """Frames of the video, decoded lazily (fastdet's reader if there is one).
+    """Frames of the video, decoded lazily (fastdet's VideoSource if there is one).
 
-    ``skip`` (called before each frame) lets fastdet's reader leave out the
-    BGR conversion of frames the pipeline will not look at.
+    ``skip`` (called before each frame) lets the source leave out the BGR
+    conversion of frames the pipeline will not look at.
     """
     try:
-        from fastdet.video.reader import VideoReader
+        from fastdet.video.source import VideoSource
     except ImportError:
-        VideoReader = None
-    if VideoReader is not None:
-        with VideoReader(path) as reader:
-            if skip is not None and hasattr(reader, "frames"):
-                yield from reader.frames(skip=skip)
-            else:
-                yield from reader
+        VideoSource = None
+    if VideoSource is not None:
+        with VideoSource(path) as source:
+            yield from source.frames(skip=skip)
         return
     import cv2
 
@@ -104,3 +110,46 @@ class VideoEndToEnd:
         return frames / (time.perf_counter() - start)
 
     track_frames_per_second.unit = "frames/s"
+
+
+class FastdetRun:
+    """Whole ``fastdet run`` processes per mode against OpenCV's decoding rate (one round)."""
+
+    params = [[label for label, _, _ in MODES]]
+    param_names = ["mode"]
+    timeout = 1800
+    number = 1
+    repeat = 1
+
+    def setup_cache(self):
+        reason = skip_reason(bench_model)
+        if reason:
+            return {"skip": reason}
+        benchmark = video_benchmark(video_path(), rounds=1)
+        return {"opencv_fps": benchmark.opencv_fps[0],
+                "fps": {m.label: m.fps[0] for m in benchmark.modes},
+                "ratio": {m.label: m.ratios[0] for m in benchmark.modes},
+                "rss_growth": benchmark.rss_long_mib / benchmark.rss_short_mib - 1}
+
+    def setup(self, cache, mode):
+        skip_if_missing(cache)
+
+    def track_fps(self, cache, mode):
+        return cache["fps"][mode]
+
+    track_fps.unit = "frames/s"
+
+    def track_ratio_to_opencv_decoding(self, cache, mode):
+        return cache["ratio"][mode]
+
+    track_ratio_to_opencv_decoding.unit = "x R"
+
+    def track_opencv_decoding_fps(self, cache, mode):
+        return cache["opencv_fps"]
+
+    track_opencv_decoding_fps.unit = "frames/s"
+
+    def track_peak_rss_growth_1000_vs_38_frames(self, cache, mode):
+        return cache["rss_growth"]
+
+    track_peak_rss_growth_1000_vs_38_frames.unit = "fraction"

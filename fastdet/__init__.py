@@ -6,6 +6,9 @@ Public API::
     detections = detector(frame_bgr_uint8)   # Detections: xyxy, score
     pipeline = fastdet.VideoPipeline(detector, fastdet.TrackConfig(every=5))
     for index, frame, boxes, track_ids in pipeline(frames): ...
+    with fastdet.VideoSource("clip.mp4") as video: ...  # files, URLs, cameras: BGR frames
+    with fastdet.VideoSink("out.mp4", video.fps, video.size) as sink: sink.write(frame)
+    fastdet.process_video("clip.mp4", "out.mp4")    # the pipelined `fastdet run`
 """
 
 from .detector.config import DetectorConfig, load_config
@@ -19,9 +22,13 @@ from .errors import ConfigError, FastdetError, InputError, ModelError
 from .training.train import train
 from .video.config import TrackConfig, load_track_config
 from .video.pipeline import VideoPipeline
+from .video.run import process_video
+from .video.sink import VideoSink
+from .video.source import VideoSource
 
 __all__ = [
     "ConfigError", "Detections", "Detector", "DetectorConfig", "FastdetError", "FeatureOptions",
-    "InputError", "Model", "ModelError", "TrackConfig", "VideoPipeline", "hog", "load_config",
-    "__version__", "load_model", "load_track_config", "train",
+    "InputError", "Model", "ModelError", "TrackConfig", "VideoPipeline", "VideoSink",
+    "VideoSource", "hog", "load_config", "__version__", "load_model", "load_track_config",
+    "process_video", "train",
 ]

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from ..detector.scoring import STAGES
-from ..errors import InputError
+from ..video.source import VideoSource
 
 #: Stage names as printed, in pipeline order; "python overhead" is the rest.
 STAGE_LABELS = {"resize_convert": "resize+convert", "cells": "cells",
@@ -84,20 +84,12 @@ def speedup(baseline, result):
 # -- frames -------------------------------------------------------------------
 def read_frames(video, count=None, size=None):
     """Decode up to ``count`` frames of a video, optionally resized to ``(w, h)``."""
-    capture = cv2.VideoCapture(str(video))
-    if not capture.isOpened():
-        raise InputError(f"cannot open video {video}")
     frames = []
-    try:
-        while count is None or len(frames) < count:
-            ok, frame = capture.read()
-            if not ok:
+    with VideoSource(video) as source:
+        for frame in source:
+            if count is not None and len(frames) >= count:
                 break
             frames.append(resize_frame(frame, size))
-    finally:
-        capture.release()
-    if not frames:
-        raise InputError(f"no frames could be read from {video}")
     return frames
 
 

@@ -7,7 +7,7 @@ Exit codes (the bad-input matrix, ``docs/reliability.md``, tests them):
   ``OSError``: bad input, an unwritable output, a full disk), reported as one
   line ``fastdet: error: ...`` on stderr; also argparse's usage errors;
 * 70: an internal error (a bug), reported as one line too;
-* 130: interrupted (Ctrl-C).
+* 130: interrupted (Ctrl-C); 143: terminated (SIGTERM) during a run (128 + the signal).
 
 ``--debug`` lets the exception through with its traceback instead;
 ``--verbose`` also logs what fastdet decides on the way (the kernel cache,
@@ -38,7 +38,8 @@ EXIT_INTERRUPTED = 130
 
 def _add_global_options(parser, default):
     parser.add_argument("--verbose", "-v", action="store_true", default=default,
-                        help="also say where kernels are cached and what was loaded or compiled")
+                        help="say more: the run's thread plan, where kernels are cached and what was "
+                             "loaded or compiled")
     parser.add_argument("--debug", action="store_true", default=default,
                         help="show the traceback of an error instead of one line")
 
@@ -89,11 +90,11 @@ def main(argv=None):
     handler = _start_verbose_log() if args.verbose else None
     try:
         return args.handler(args)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         if args.debug:
             raise
         print("fastdet: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return 128 + getattr(exc, "signum", EXIT_INTERRUPTED - 128)
     except (FastdetError, OSError) as exc:
         if args.debug:
             raise

@@ -18,7 +18,12 @@ def add_bench_parser(subparsers):
         "bench", help="per-frame latency of fastdet and its peers (markdown tables)",
         description="Time fastdet, the reference pipeline and OpenCV's HOGDescriptor on the "
                     "same frames of a video and print markdown tables.")
-    bench.add_argument("--video", help="video to time (default: the shared test video)")
+    bench.add_argument("--input", metavar="VIDEO",
+                       help="video to time (default: the shared test video)")
+    bench.add_argument("--video", action="store_true",
+                       help="time the main job instead: whole `fastdet run` processes on a "
+                            "1000-frame H.264 input (made once) per mode, against OpenCV's "
+                            "single-thread decoding rate R of the same file")
     bench.add_argument("--frames", type=int, metavar="N",
                        help="use the first N frames (default: all; 10 for --scaling)")
     bench.add_argument("--threads", type=int, nargs="+", metavar="T",
@@ -35,9 +40,9 @@ def add_bench_parser(subparsers):
                             "(default: at the benchmark's frame size only)")
     bench.add_argument("--scaling", action="store_true",
                        help="also time fastdet vs frame size, number of scales and threads")
-    bench.add_argument("--rounds", type=int, default=5,
-                       help="--scaling: round-robin passes over all settings; the median "
-                            "pass is kept (default 5)")
+    bench.add_argument("--rounds", type=int,
+                       help="round-robin passes over all settings; the median pass is kept "
+                            "(default 5 for --scaling, 3 for --video)")
     bench.add_argument("--plot", metavar="PNG", help="draw the scaling study (implies --scaling)")
     bench.add_argument("--model", metavar="M", help="model file (default: bundled)")
     bench.add_argument("--config", metavar="C", help="TOML config")
@@ -87,8 +92,11 @@ def cmd_bench(args):
         value = getattr(args, name)
         if value is not None and value < 1:
             raise InputError(f"--{name} must be at least 1, got {value}")
+    if args.video:
+        return _video_benchmark(args, log)
     scaling = args.scaling or bool(args.plot)
-    video = args.video or data_dir() / "test_video.mp4"
+    rounds = args.rounds or 5
+    video = args.input or data_dir() / "test_video.mp4"
     size = parse_size(args.size) if args.size else None
     threads = args.threads or sorted({1, numba.config.NUMBA_NUM_THREADS})
     model = load_model(args.model)
@@ -135,10 +143,24 @@ def cmd_bench(args):
     if scaling:
         study_frames = frames[:args.frames or 10]
         points = scaling_study(study_frames, model=model, config=config,
-                               threads=sorted({1, *threads}), rounds=args.rounds, log=log)
-        print(f"\n## Scaling ({len(study_frames)} frames; median over {args.rounds} passes of "
+                               threads=sorted({1, *threads}), rounds=rounds, log=log)
+        print(f"\n## Scaling ({len(study_frames)} frames; median over {rounds} passes of "
               "the median ms per frame)\n")
         print(format_scaling(points))
         if args.plot:
             print(f"\nplot written to {plot_scaling(points, args.plot)}")
+    return 0
+
+
+def _video_benchmark(args, log):
+    """``fastdet bench --video``: the main job's throughput per mode, against R."""
+    from ..bench.video_run import format_video_benchmark, video_benchmark
+    from ..files.shared_data import data_dir
+
+    print(f"machine: {_machine_line()}")
+    threads = args.threads[0] if args.threads else None
+    benchmark = video_benchmark(args.input or data_dir() / "test_video.mp4",
+                                rounds=args.rounds or 3, threads=threads, log=log)
+    print("\n## fastdet run throughput\n")
+    print(format_video_benchmark(benchmark, threads))
     return 0

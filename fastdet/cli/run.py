@@ -1,21 +1,25 @@
-"""``fastdet run VIDEO``: detect and track vehicles in a video, a thin layer over VideoPipeline.
+"""``fastdet run VIDEO``: detect and track vehicles in a video, a thin layer over process_video.
 
-Frames are streamed from the decoder through :class:`~fastdet.video.pipeline.VideoPipeline`
-to the annotated video and/or the detections file, one at a time.  A
-progress bar with the frame rate goes to stderr when it is a terminal; the
-run ends with a one-line summary on stdout.  Ctrl-C stops the run and still
-completes both outputs with every frame processed so far.
+The input is a file, a URL (``http(s)://``, ``rtsp://``, ``udp://``,
+``tcp://``) or a camera (``/dev/video0`` or ``0``).  Decoding, detection,
+encoding and the detections file run pipelined
+(:func:`fastdet.video.run.process_video`).  A tqdm progress bar (frames, fps
+and, for inputs of known length, the time left) goes to stderr when it is a
+terminal; the run ends with a one-line summary on stdout.  Ctrl-C or SIGTERM
+stops the run and still completes both outputs with every frame processed so
+far (exit status 130 or 143); a second one aborts at once, leaving no output.
 """
 
 from __future__ import annotations
 
-import contextlib
+import argparse
 import sys
-import time
 from pathlib import Path
+from urllib.parse import urlparse
 
 from ..errors import InputError
 from ..video.detection_files import FORMATS
+from ..video.sink import ENCODERS
 from .common import compile_notice
 
 
@@ -28,22 +32,31 @@ def add_run_parser(subparsers):
         The ``run`` parser; its ``handler`` default is :func:`cmd_run`.
     """
     run = subparsers.add_parser(
-        "run", help="detect and track vehicles in a video",
-        description="Detect and track vehicles in a video; write the annotated video and/or "
-                    "a detections file.  With neither --out nor --detections, writes "
-                    "<VIDEO>_fastdet.mp4 beside the input.")
+        "run", help="detect and track vehicles in a video, stream or camera",
+        description="Detect and track vehicles in a video file, a stream (http(s)://, rtsp://, "
+                    "udp://, tcp://) or a camera (/dev/video0 or 0); write the annotated video "
+                    "(H.264 MP4 that plays in a browser) and/or a detections file.  With neither "
+                    "--out nor --detections, writes <VIDEO>_fastdet.mp4 beside the input.")
     run.add_argument("video", metavar="VIDEO")
     run.add_argument("--out", metavar="OUT.mp4",
-                     help="annotated video (same size and frame rate as the input)")
+                     help="annotated video (same size, frame rate and timestamps as the input)")
     run.add_argument("--detections", metavar="FILE", help="detections file")
     run.add_argument("--format", choices=FORMATS,
                      help="detections format (default: from FILE's suffix, else jsonl)")
+    run.add_argument("--codec", choices=tuple(ENCODERS), default="h264",
+                     help="codec of the annotated video (default h264: plays everywhere)")
+    run.add_argument("--crf", type=int, metavar="Q",
+                     help="quality, lower is better and bigger (default: h264 23, hevc 28, "
+                          "av1 35, vp9 35; mp4v: quantiser 2-31, default 5)")
+    run.add_argument("--preset", metavar="P",
+                     help="encoder speed preset (default: h264/hevc ultrafast, av1 12, vp9 8)")
     run.add_argument("--model", metavar="M", help="model file (.npz); default: bundled model")
     run.add_argument("--config", metavar="C",
                      help="TOML config overriding built-in defaults ([track] for video settings)")
     run.add_argument("--threads", type=int, metavar="T",
-                     help="threads per frame: scales are scored concurrently (default: "
-                          "NUMBA_NUM_THREADS, all cores)")
+                     help="cores the run may keep busy, shared by the decoder, the detector and "
+                          "the encoder (default: NUMBA_NUM_THREADS, all cores; --verbose "
+                          "prints the plan)")
     run.add_argument("--start", type=int, default=0, metavar="F",
                      help="first frame to process (frames count from 0)")
     run.add_argument("--end", type=int, metavar="F", help="stop before frame F")
@@ -52,76 +65,72 @@ def add_run_parser(subparsers):
                           "(overrides track.every)")
     run.add_argument("--track", action="store_true",
                      help="patch tracking between full detections (sets track.tracking)")
+    run.add_argument("--realtime", action="store_true",
+                     help="keep up with a live source: when processing falls behind, keep only "
+                          "the newest frame (the summary counts the dropped ones); a file is "
+                          "read at its own frame rate")
+    run.add_argument("--timeout", type=float, default=10.0, metavar="S",
+                     help="seconds a stream or camera may stay silent (default 10)")
     run.add_argument("--quiet", "-q", action="store_true", help="no progress bar or notices")
+    run.add_argument("--verbose", "-v", action="store_true", default=argparse.SUPPRESS,
+                     help="print the thread plan")
     run.add_argument("--debug-view", action="store_true",
                      help="draw the live heat map and per-frame timings into the output video")
     run.set_defaults(handler=cmd_run)
     return run
 
 
-class Progress:
-    """A one-line progress bar with the frame rate, redrawn at most 10 times a second.
+class ProgressBar:
+    """A tqdm bar of frames done, fps and, when the length is known, the time left.
 
-    Parameters
-    ----------
-    total : int or None
-        Frames expected (``None``: only the count is shown).
-    enabled : bool
-        Draw anything at all.
-    stream : file, optional
-        Default ``sys.stderr``.
+    Created at the first update, so nothing is drawn for a run that fails
+    before its first frame.
     """
 
-    WIDTH = 30
-
-    def __init__(self, total, enabled, stream=None):
-        self.total = total
-        self.stream = stream or sys.stderr
+    def __init__(self, enabled, stream=None):
         self.enabled = enabled
-        self._last_draw = 0.0
-        self._drawn = False
+        self.stream = stream or sys.stderr
+        self._bar = None
 
-    def update(self, done, fps, force=False):
-        """Show ``done`` frames processed at ``fps`` frames per second."""
+    def update(self, done, total):
+        """Show ``done`` frames of ``total`` (``None``: a live source, no time left)."""
         if not self.enabled:
             return
-        now = time.monotonic()
-        if not force and now - self._last_draw < 0.1:
-            return
-        self._last_draw = now
-        if self.total:
-            filled = min(self.WIDTH, int(self.WIDTH * done / self.total))
-            bar = "#" * filled + "." * (self.WIDTH - filled)
-            text = f"frame {done}/{self.total} [{bar}] {fps:5.1f} fps"
-        else:
-            text = f"frame {done} {fps:5.1f} fps"
-        self.stream.write("\r" + text)
-        self.stream.flush()
-        self._drawn = True
+        if self._bar is None:
+            from tqdm import tqdm
 
-    def clear(self):
+            self._bar = tqdm(total=total, unit=" frames", file=self.stream, leave=False,
+                             dynamic_ncols=True, mininterval=0.1, smoothing=0.1)
+        self._bar.update(done - self._bar.n)
+
+    def close(self):
         """Erase the bar so the next line starts clean."""
-        if self._drawn:
-            self.stream.write("\r\x1b[K")
-            self.stream.flush()
-            self._drawn = False
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
 
 
 def default_output(video):
-    """``<video>_fastdet.mp4`` beside the input video."""
-    video = Path(video)
-    return video.with_name(f"{video.stem}_fastdet.mp4")
+    """``<video>_fastdet.mp4`` beside an input file; in the current folder for streams."""
+    if _is_file(video):
+        video = Path(video)
+        return video.with_name(f"{video.stem}_fastdet.mp4")
+    stem = Path(urlparse(str(video)).path).stem or "stream"
+    stem = f"camera{stem}" if stem.isdigit() else stem
+    return Path(f"{stem}_fastdet.mp4")
+
+
+def _is_file(video):
+    text = str(video)
+    return not (text.isdigit() or text.startswith("/dev/video") or "://" in text)
 
 
 def _same_file(a, b):
     return Path(a).resolve() == Path(b).resolve()
 
 
-def _pipeline(args):
-    from ..detector.config import load_config
-    from ..detector.detector import Detector
+def _track_config(args):
     from ..video.config import load_track_config
-    from ..video.pipeline import VideoPipeline
 
     track_config = load_track_config(args.config)
     if args.every is not None:
@@ -130,7 +139,30 @@ def _pipeline(args):
         track_config = track_config.replace(every=args.every)
     if args.track:
         track_config = track_config.replace(tracking=True)
-    detector = Detector(model=args.model, config=load_config(args.config), threads=args.threads)
+    return track_config
+
+
+def _plan(args, track_config):
+    """How the run's threads are shared (the same plan process_video makes)."""
+    import numba
+
+    from ..video.stages import plan_threads
+
+    if args.threads is not None and args.threads < 1:
+        raise InputError(f"--threads must be at least 1, got {args.threads}")
+    period = track_config.search_period
+    return plan_threads(args.threads or numba.config.NUMBA_NUM_THREADS, args.out is not None,
+                        1.0 / period if period else 1.0)
+
+
+def _pipeline(args):
+    from ..detector.config import load_config
+    from ..detector.detector import Detector
+    from ..video.pipeline import VideoPipeline
+
+    track_config = _track_config(args)
+    detector = Detector(model=args.model, config=load_config(args.config),
+                        threads=_plan(args, track_config).detector)
     return VideoPipeline(detector, track_config)
 
 
@@ -146,49 +178,46 @@ def cmd_run(args):
     ------
     InputError, ModelError, ConfigError
         With a one-line message, before any output is created.
-    KeyboardInterrupt
-        After completing both outputs with every frame processed so far.
+    RunInterrupted
+        After Ctrl-C or SIGTERM, once both outputs hold every frame processed so far.
     """
-    from ..video.detection_files import DetectionWriter
-    from ..video.reader import VideoReader
-    from ..video.run import stream
-    from ..video.writer import VideoWriter
+    from ..video.run import RunInterrupted, process_video
+    from ..video.source import VideoSource
 
+    verbose = getattr(args, "verbose", False)
     out, detections_path = args.out, args.detections
     announce = out is None and detections_path is None
     if announce:
-        out = default_output(args.video)
+        out = args.out = default_output(args.video)
     for output in (out, detections_path):
-        if output is not None and Path(args.video).exists() and _same_file(output, args.video):
+        if output is not None and _is_file(args.video) and Path(args.video).exists() \
+                and _same_file(output, args.video):
             raise InputError(f"output {output} would overwrite the input video")
     if out is not None and detections_path is not None and _same_file(out, detections_path):
         raise InputError("--out and --detections name the same file")
-    with contextlib.ExitStack() as stack:
-        # Problems with the input, then with the model or config, then with
-        # the outputs: each is reported before any output file exists.
-        reader = stack.enter_context(VideoReader(args.video, args.start, args.end))
+    if args.timeout <= 0:
+        raise InputError(f"--timeout must be positive, got {args.timeout}")
+    # Problems with the input, then with the model or config, then with the
+    # outputs: each is reported before any output file exists.
+    plan = _plan(args, _track_config(args))
+    with VideoSource(args.video, args.start, args.end, threads=plan.decoder,
+                     timeout=args.timeout) as source:
         pipeline = _pipeline(args)
-        video_out = det_out = None
-        if out is not None:
-            video_out = stack.enter_context(VideoWriter(out, reader.fps, reader.size,
-                                                          background=True))
-        if detections_path is not None:
-            det_out = stack.enter_context(DetectionWriter(detections_path, args.format))
         if announce and not args.quiet:
             print(f"fastdet: no --out or --detections given; writing {out}", file=sys.stderr)
-        warmup = 0.0
-        warm_up = getattr(pipeline.detector, "warm_up", None)
-        if warm_up is not None:
-            with compile_notice(enabled=not args.quiet):
-                warmup = warm_up(reader.first_frame)
-        progress = Progress(reader.expected_frames,
-                            enabled=not args.quiet and sys.stderr.isatty())
-        # An interrupt comes back as stats.interrupted, so leaving this block
-        # normally completes both outputs with every frame done so far.
-        stats = stream(reader, pipeline, args.start, video_out, det_out, progress,
-                       debug_view=args.debug_view, warmup=warmup)
-        progress.clear()
-    print(stats.summary([p for p in (out, detections_path) if p is not None]), flush=True)
+        bar = ProgressBar(enabled=not args.quiet and sys.stderr.isatty())
+        try:
+            stats = process_video(
+                source, out, pipeline, detections=detections_path,
+                detections_format=args.format, codec=args.codec, crf=args.crf,
+                preset=args.preset, threads=args.threads, realtime=args.realtime,
+                debug_view=args.debug_view, progress=bar.update,
+                log=(lambda line: print(f"fastdet: {line}", file=sys.stderr)) if verbose else None,
+                warm_up_notice=lambda: compile_notice(enabled=not args.quiet))
+        finally:
+            bar.close()
+    written = [p for p in (out, detections_path) if p is not None and Path(p).exists()]
+    print(stats.summary(written), flush=True)
     if stats.interrupted:
-        raise KeyboardInterrupt
+        raise RunInterrupted(stats.interrupted)
     return 0

@@ -24,6 +24,7 @@ from ..detector.geometry import iou_matrix
 from ..errors import InputError
 from ..files.atomic import output_in_folder, refuse_overwriting_inputs
 from ..files.images import read_image, write_image
+from ..video.source import VideoSource
 
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".m4v"}
 
@@ -51,21 +52,16 @@ def annotated_frames(source, annotations):
     if not source.is_file():
         raise InputError(f"mining source not found: {source}")
     if source.suffix.lower() in VIDEO_SUFFIXES:
-        capture = cv2.VideoCapture(str(source))
-        if not capture.isOpened():
-            raise InputError(f"cannot open video {source}")
-        try:
-            index = 0
-            while True:
-                ok, frame = capture.read()
-                if not ok:
-                    break
+        index = -1
+
+        def unannotated():  # asked before frame index + 1: leave it unconverted
+            return f"frame{index + 1:04d}" not in annotations
+
+        with VideoSource(source) as video:
+            for index, frame in enumerate(video.frames(skip=unannotated)):
                 key = f"frame{index:04d}"
-                if key in annotations:
+                if frame is not None and key in annotations:
                     yield key, frame
-                index += 1
-        finally:
-            capture.release()
         return
     if source.name in annotations:
         yield source.name, read_image(source)

@@ -69,7 +69,8 @@ class DetectionWriter(StagedFile):
         self.frames = 0
         self.boxes = 0
         try:
-            self._handle = open(self.temporary, "w", encoding="utf-8", newline="")
+            # Line-buffered: a live run's detections can be followed as they come.
+            self._handle = open(self.temporary, "w", encoding="utf-8", newline="", buffering=1)
         except OSError as exc:
             self.discard()
             raise InputError(f"cannot write {self.path}: {exc.strerror or exc}") from None

@@ -1,144 +1,290 @@
-"""One video through :class:`~fastdet.video.pipeline.VideoPipeline` to its outputs.
+"""One video through the detector to its outputs, pipelined: :func:`process_video`.
 
-:func:`stream` pulls frames from a reader, runs the temporal pipeline on
-each, draws the boxes into the annotated video and writes the detections
-file, timing every stage; ``fastdet run`` is a thin layer over it.
+``fastdet run`` is a thin layer over :func:`process_video`, and so is the
+batch runner (one call per video or per frame range).  The stages and their
+threads are in :mod:`.stages`; this module opens the input and the outputs
+in the right order (every problem with them is reported before any output
+exists), wires the stages, handles Ctrl-C and SIGTERM, and reports.
 """
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
-import numpy as np
+import numba
 
-from ..detector.scoring import STAGES
-from ..viz.draw import debug_frame, draw_detections_inplace
+from ..detector.config import DetectorConfig, load_config
+from ..detector.detector import Detector
+from ..detector.plan import search_band
+from ..errors import InputError
+from .config import TrackConfig, load_track_config
+from .detection_files import DetectionWriter
+from .pipeline import VideoPipeline
+from .sink import VideoSink
+from .source import DEFAULT_TIMEOUT, VideoSource
+from .stages import (Conveyor, StageTimes, ThreadPlan, decode, detect, encode, plan_threads,
+                     report)
 
-#: Marks the end of the frame stream (``None`` is a frame that was not converted).
-_END = object()
+#: The stages of a run, in pipeline order.
+RUN_STAGES = ("decode", "detect", "encode", "write")
 
-#: Stages of the per-frame time split, in pipeline order.
-RUN_STAGES = ("decode", "detect", "track", "draw", "encode", "write")
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM stopped the run; ``signum`` says which (exit status 128 + signum)."""
+
+    def __init__(self, signum=signal.SIGINT):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = int(signum)
 
 
 @dataclass
 class RunStats:
-    """What a run did, for its summary line.
-
-    ``seconds`` sums the wall time of each of ``RUN_STAGES`` over the run.
-    With a background encoder, ``encode`` is only the time the loop waited
-    to hand frames over; the encoding itself overlaps the other stages.
-    """
+    """What a run did, for its summary line and the benchmarks."""
 
     frames: int = 0
     boxes: int = 0
     track_ids: set = field(default_factory=set)
-    seconds: dict = field(default_factory=lambda: dict.fromkeys(RUN_STAGES, 0.0))
-    wall: float = 0.0
     full_searches: int = 0
-    interrupted: bool = False
+    wall: float = 0.0
     #: Seconds spent loading (or compiling) the kernels before the first frame; not in ``wall``.
     warmup: float = 0.0
+    #: The signal that stopped the run early (``None``: it ran to the end).
+    interrupted: int | None = None
+    #: Frames left out by ``realtime`` because processing fell behind.
+    dropped: int = 0
+    #: Why the input ended early or a live stream stopped (``None``: it ended normally).
+    ended: str | None = None
+    times: StageTimes = field(default_factory=StageTimes)
+    plan: ThreadPlan | None = None
+
+    @property
+    def fps(self):
+        return self.frames / self.wall if self.wall > 0 else 0.0
+
+    def cpu_ms_per_frame(self):
+        """CPU milliseconds per output frame of each stage's thread, and of the codec threads.
+
+        ``codec threads`` is the CPU of the threads FFmpeg, x264 and the
+        detector's scale pool run besides the stage threads.
+        """
+        frames = max(self.frames, 1)
+        stages = self.times.stages
+        result = {name: stages[name].cpu * 1e3 / frames for name in RUN_STAGES if name in stages}
+        others = self.times.process_cpu - sum(clock.cpu for clock in stages.values())
+        result["codec threads"] = max(others, 0.0) * 1e3 / frames
+        return result
 
     def summary(self, outputs):
         """The one-line report printed at the end of a run."""
-        fps = self.frames / self.wall if self.wall > 0 else 0.0
-        per_frame = ", ".join(f"{stage} {self.seconds[stage] / max(self.frames, 1) * 1e3:.1f}"
-                              for stage in RUN_STAGES)
+        per_frame = ", ".join(f"{name} {ms:.1f}" for name, ms in self.cpu_ms_per_frame().items())
         head = "interrupted after " if self.interrupted else ""
+        dropped = f", {self.dropped} dropped (--realtime)" if self.dropped else ""
+        bound = self.times.bound()
+        bound = f"; bound by {bound}" if bound and self.frames else ""
         written = "; wrote " + ", ".join(str(p) for p in outputs) if outputs else ""
-        return (f"{head}{self.frames} frames, {self.boxes} detections, {len(self.track_ids)} "
-                f"tracks, {self.full_searches} full searches, {fps:.1f} fps; "
-                f"ms/frame: {per_frame}; kernels ready in {self.warmup:.1f} s before the "
-                f"first frame (not in fps){written}")
+        ended = f"; {self.ended}" if self.ended else ""
+        return (f"{head}{self.frames} frames{dropped}, {self.boxes} detections, "
+                f"{len(self.track_ids)} tracks, {self.full_searches} full searches, "
+                f"{self.fps:.1f} fps; ms/frame: {per_frame} (CPU){bound}; kernels ready in "
+                f"{self.warmup:.1f} s before the first frame (not in fps){ended}{written}")
 
 
-def _debug_view(frame, detections, pipeline):
-    """The frame with boxes, the live heat map inset and the detector's stage timings."""
-    heat = np.zeros(frame.shape[:2], np.float32)
-    if pipeline.last_heat is not None:
-        region, (x0, y0) = pipeline.last_heat
-        h = min(region.shape[0], heat.shape[0] - y0)
-        w = min(region.shape[1], heat.shape[1] - x0)
-        if h > 0 and w > 0:
-            heat[y0:y0 + h, x0:x0 + w] = region[:h, :w]
-    timings = pipeline.detector.timings
-    timings_ms = {stage: 1e3 * timings[stage] for stage in STAGES if stage in timings}
-    # A fixed scale keeps the inset's brightness from pumping with each frame's peak.
-    scale = 4 * pipeline.detector.config.heat.threshold or None
-    return debug_frame(frame, detections, heat, timings_ms, heat_max=scale)
+# -- signals ------------------------------------------------------------------------------
+@contextlib.contextmanager
+def _signals(conveyor, stats):
+    """Ctrl-C and SIGTERM: before the stages run, interrupt; while they run, stop, then abort.
+
+    Only the main thread can handle signals; elsewhere (a worker thread of a
+    batch runner) the caller's own handling stays in force.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handle(signum, _frame):
+        stats.interrupted = stats.interrupted or signum
+        if not conveyor.running:
+            raise RunInterrupted(signum)
+        if conveyor.stopping.is_set():
+            conveyor.abort()      # a second signal: give up at once
+        else:
+            conveyor.stop()
+
+    previous = {signum: signal.signal(signum, handle)
+                for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
-def stream(reader, pipeline, first_index, video_out=None, det_out=None, progress=None,
-           debug_view=False, warmup=0.0):
-    """Push every frame of ``reader`` through the pipeline to the outputs.
+# -- the run ------------------------------------------------------------------------------
+def _settings(detector, config):
+    """``(TrackConfig, DetectorConfig or None)`` from what :func:`process_video` was given."""
+    if isinstance(detector, VideoPipeline):
+        return detector.config, None
+    if config is None or isinstance(config, TrackConfig):
+        return config or TrackConfig(), None
+    if isinstance(config, DetectorConfig):
+        return TrackConfig(), config
+    if isinstance(config, (str, Path)):
+        return load_track_config(config), load_config(config)
+    raise InputError(f"config must be a TOML path, a TrackConfig or a DetectorConfig, "
+                     f"not {type(config).__name__}")
+
+
+def process_video(source, target=None, detector=None, config=None, callback=None, *,
+                  detections=None, detections_format=None, start=0, end=None, warmup=0,
+                  codec="h264", crf=None, preset=None, threads=None, realtime=False,
+                  debug_view=False, timeout=DEFAULT_TIMEOUT, progress=None, log=None,
+                  warm_up_notice=None):
+    """Detect and track vehicles in a video, writing the annotated video and/or detections.
+
+    Decoding, detection+tracking, drawing+encoding and the detections file run
+    as pipelined stages (:mod:`fastdet.video.stages`); the detections are the
+    same as those of a plain loop over :class:`VideoPipeline`.
 
     Parameters
     ----------
-    reader : iterable of ndarray
-        Frames in order.
-    pipeline : VideoPipeline
-    first_index : int
-        Index of the first frame in the input video.
-    video_out : VideoWriter, optional
-        Receives each frame with its boxes drawn.
-    det_out : DetectionWriter, optional
-        Receives each frame's detections.
-    progress : Progress, optional
+    source : str, Path, int or VideoSource
+        A file, URL or camera (see :class:`VideoSource`), or an open source.
+    target : str or Path, optional
+        The annotated video (H.264 in MP4 by default).
+    detector : Detector or VideoPipeline, optional
+        Default: the bundled model with ``config``'s settings.
+    config : str, Path, TrackConfig or DetectorConfig, optional
+        A TOML file (its detector sections and ``[track]``), or one of the
+        two settings objects; a ``VideoPipeline`` brings its own.
+    callback : callable, optional
+        ``callback(frame_index, detections)`` for every output frame, in
+        order, on the output thread.
+    detections : str or Path, optional
+        The detections file; ``detections_format`` is ``jsonl``, ``csv`` or
+        ``mot`` (default: from the suffix).
+    start, end : int
+        The frames ``[start, end)`` go to the outputs (frames count from 0).
+    warmup : int
+        Frames before ``start`` run through the detector and tracker first,
+        their outputs discarded, so a range of a long video starts with the
+        temporal state a run from the beginning would have had (a batch runner
+        splits a video into ranges this way).
+    codec, crf, preset : str, int, str
+        See :class:`VideoSink`.
+    threads : int, optional
+        Cores the whole run may keep busy (default ``NUMBA_NUM_THREADS``),
+        shared between the decoder, the detector and the encoder by
+        :func:`plan_threads`.
+    realtime : bool
+        Never let the input wait: when processing falls behind, only the
+        newest frame is kept (``RunStats.dropped`` counts the rest); a file is
+        read at its own frame rate.
     debug_view : bool
-        Draw the live heat map and per-stage timings into the video frames.
-    warmup : float
-        Seconds the caller spent loading the kernels first (reported, not timed).
+        Draw the live heat map and the detector's timings into the video.
+    timeout : float
+        Seconds a network source or camera may stay silent.
+    progress : callable, optional
+        ``progress(frames_done, frames_expected or None)`` about 10 times a
+        second, on the calling thread.
+    log : callable, optional
+        Receives notes such as the thread plan (``--verbose``).
+    warm_up_notice : callable, optional
+        Returns a context manager wrapped around the kernels' warm-up.
 
     Returns
     -------
     RunStats
-        With ``interrupted`` set when Ctrl-C stopped the run: the interrupt
-        is absorbed so the caller can complete the outputs first.
+        With ``interrupted`` set when Ctrl-C or SIGTERM stopped the run early:
+        both outputs then hold every frame completed before it.
+
+    Raises
+    ------
+    InputError, ModelError, ConfigError
+        One-line problems; those of the input and the outputs come before any
+        output exists.  An input that breaks off mid-way raises after the
+        outputs were completed with every frame before the break.
+    RunInterrupted
+        A second Ctrl-C or SIGTERM (the outputs are discarded), or one before
+        the first frame.
     """
-    stats = RunStats(warmup=warmup)
-    seconds = stats.seconds
-    start = time.perf_counter()
-    if video_out is None and hasattr(reader, "frames"):
-        # Frames the pipeline does not look at need not be converted.
-        frames = reader.frames(skip=lambda: not pipeline.wants_frame)
-    else:
-        frames = iter(reader)
-    try:
-        while True:
-            t0 = time.perf_counter()
-            frame = next(frames, _END)
-            t1 = time.perf_counter()
-            seconds["decode"] += t1 - t0
-            if frame is _END:
-                break
-            detections = pipeline.process(frame)
-            t2 = time.perf_counter()
-            if video_out is not None:
-                if debug_view:
-                    frame = _debug_view(frame, detections, pipeline)
-                else:
-                    draw_detections_inplace(frame, detections)
-                t3 = time.perf_counter()
-                video_out.write(frame)
-                t4 = time.perf_counter()
-                seconds["draw"] += t3 - t2
-                seconds["encode"] += t4 - t3
-                t2 = t4
-            if det_out is not None:
-                det_out.write(first_index + stats.frames, detections)
-                seconds["write"] += time.perf_counter() - t2
-            stats.frames += 1
-            stats.boxes += len(detections)
-            stats.track_ids.update(detections.track_id.tolist())
-            if progress is not None:
-                elapsed = time.perf_counter() - start
-                progress.update(stats.frames, stats.frames / elapsed if elapsed > 0 else 0.0)
-    except KeyboardInterrupt:
-        stats.interrupted = True
-    stats.wall = time.perf_counter() - start
-    seconds["detect"] = pipeline.seconds["detect"]
-    seconds["track"] = pipeline.seconds["track"]
-    stats.full_searches = pipeline.full_searches
+    warmup = int(warmup)
+    if warmup < 0:
+        raise InputError(f"warmup must be >= 0, got {warmup}")
+    cores = threads or numba.config.NUMBA_NUM_THREADS
+    stats = RunStats()
+    conveyor = Conveyor()
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(_signals(conveyor, stats))
+        track_config, detector_config = _settings(detector, config)
+        period = track_config.search_period
+        plan = stats.plan = plan_threads(cores, target is not None,
+                                         1.0 / period if period else 1.0)
+        if log is not None:
+            log(plan.describe())
+        if isinstance(detector, VideoPipeline):
+            pipeline = detector
+        else:
+            pipeline = VideoPipeline(detector or Detector(config=detector_config,
+                                                          threads=plan.detector), track_config)
+        if isinstance(source, VideoSource):
+            video = source
+        else:
+            first = max(int(start) - warmup, 0)
+            video = stack.enter_context(VideoSource(source, first, end, timeout=timeout,
+                                                    threads=plan.decoder))
+        first_output = max(int(start), video.start)
+        rows = None
+        if not pipeline.config.tracking and hasattr(pipeline.detector, "plans"):
+            band = search_band(pipeline.detector.plans(video.size))
+            rows = None if band is None else (band[1], band[3])
+        sink = writer = None
+        if target is not None:
+            sink = stack.enter_context(VideoSink(
+                target, video.rate, video.size, codec, crf, preset, threads=plan.encoder,
+                time_base=video.time_base, colour=None if debug_view else video.colour))
+        if detections is not None:
+            writer = stack.enter_context(DetectionWriter(detections, detections_format))
+        warm_up = getattr(pipeline.detector, "warm_up", None)
+        if warm_up is not None:
+            with (warm_up_notice() if warm_up_notice else contextlib.nullcontext()):
+                stats.warmup = warm_up(video.first_frame)
+
+        inbox, outboxes = conveyor.queue(), []
+        if sink is not None:
+            outboxes.append(conveyor.queue())
+            conveyor.add("encode", encode, conveyor, outboxes[-1], sink, inbox=outboxes[-1])
+        outboxes.append(conveyor.queue())
+        conveyor.add("write", report, conveyor, outboxes[-1], writer, callback, stats,
+                     inbox=outboxes[-1])
+        conveyor.add("decode", decode, conveyor, video, inbox, realtime, stats)
+        conveyor.add("detect", detect, conveyor, inbox, outboxes, pipeline, rows, debug_view,
+                     first_output, stats, inbox=inbox)
+        started = time.perf_counter()
+        total = video.expected_frames
+        total = None if total is None else max(total - (first_output - video.start), 0)
+        tick = None if progress is None else (lambda: progress(stats.frames, total))
+        try:
+            conveyor.run(tick)
+        except BaseException:
+            _discard(sink, writer)
+            raise
+        finally:
+            stats.wall = time.perf_counter() - started
+            stats.times = conveyor.times
+        if conveyor.aborted:
+            _discard(sink, writer)
+            raise RunInterrupted(stats.interrupted or signal.SIGINT)
+    if stats.ended and not video.live and not stats.interrupted:
+        raise InputError(f"{stats.ended}; the outputs hold the {stats.frames} frames before it")
     return stats
+
+
+def _discard(*outputs):
+    for output in outputs:
+        if output is not None:
+            output.discard()

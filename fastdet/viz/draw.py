@@ -35,16 +35,59 @@ def draw_detections(frame, detections, thickness=3):
     return canvas
 
 
-def draw_detections_inplace(canvas, detections, thickness=3):
-    """Like :func:`draw_detections`, drawing on ``canvas`` itself."""
-    for i, (x1, y1, x2, y2) in enumerate(detections.xyxy.tolist()):
+def _labelled_boxes(detections):
+    """``(box, palette colour, label)`` of each detection."""
+    for i, box in enumerate(detections.xyxy.tolist()):
         track = None if detections.track_id is None else int(detections.track_id[i])
         colour = _PALETTE[(track if track is not None else 0) % len(_PALETTE)]
-        cv2.rectangle(canvas, (x1, y1), (x2 - 1, y2 - 1), colour, thickness)
         label = f"#{track}" if track is not None else f"{detections.score[i]:.1f}"
+        yield box, colour, label
+
+
+def draw_detections_inplace(canvas, detections, thickness=3):
+    """Like :func:`draw_detections`, drawing on ``canvas`` itself."""
+    for (x1, y1, x2, y2), colour, label in _labelled_boxes(detections):
+        cv2.rectangle(canvas, (x1, y1), (x2 - 1, y2 - 1), colour, thickness)
         cv2.putText(canvas, label, (x1, max(y1 - 6, 12)), cv2.FONT_HERSHEY_SIMPLEX, 0.6, colour, 2,
                     cv2.LINE_AA)
     return canvas
+
+
+def bgr_to_yuv(colour, bt709=False):
+    """Limited-range ``(Y, U, V)`` of a BGR colour, by the BT.709 or BT.601 matrix."""
+    blue, green, red = (c / 255.0 for c in colour)
+    kr, kb = (0.2126, 0.0722) if bt709 else (0.299, 0.114)
+    luma = kr * red + (1 - kr - kb) * green + kb * blue
+    return (int(round(16 + 219 * luma)), int(round(128 + 224 * (blue - luma) / (2 - 2 * kb))),
+            int(round(128 + 224 * (red - luma) / (2 - 2 * kr))))
+
+
+def draw_detections_yuv420(luma, u, v, detections, bt709=False, thickness=3):
+    """Draw boxes and labels on the planes of a yuv420p frame, in place.
+
+    The same picture as :func:`draw_detections_inplace` on the BGR frame, drawn
+    without converting the frame: luma at full resolution, chroma at half.
+
+    Parameters
+    ----------
+    luma : ndarray of uint8, shape (H, W)
+    u, v : ndarray of uint8, shape (ceil(H / 2), ceil(W / 2))
+    detections : Detections
+    bt709 : bool
+        Colours by the BT.709 matrix (HD video) instead of BT.601.
+    thickness : int
+    """
+    # Chroma lines two luma pixels per chroma pixel wide: as wide as the luma line.
+    font, half = cv2.FONT_HERSHEY_SIMPLEX, max(1, thickness - 1)
+    for (x1, y1, x2, y2), colour, label in _labelled_boxes(detections):
+        y_value, u_value, v_value = bgr_to_yuv(colour, bt709)
+        origin = (x1, max(y1 - 6, 12))
+        cv2.rectangle(luma, (x1, y1), (x2 - 1, y2 - 1), y_value, thickness)
+        cv2.putText(luma, label, origin, font, 0.6, y_value, 2, cv2.LINE_AA)
+        for plane, value in ((u, u_value), (v, v_value)):
+            cv2.rectangle(plane, (x1 // 2, y1 // 2), ((x2 - 1) // 2, (y2 - 1) // 2), value, half)
+            cv2.putText(plane, label, (origin[0] // 2, origin[1] // 2), font, 0.3, value, 1,
+                        cv2.LINE_AA)
 
 
 def debug_frame(frame, detections, heat, timings_ms, heat_max=None):

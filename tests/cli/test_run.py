@@ -7,17 +7,21 @@ import io
 import json
 import re
 import shutil
+import socket
 
+import av
 import cv2
 import numpy as np
 import pytest
+from video_files import UdpSender, free_port, mpegts_bytes
 from video_stubs import BlockDetector, bundled_model_path, moving_block
 
 from fastdet.cli import app as cli
 from fastdet.cli import run as commands_run
-from fastdet.cli.run import Progress, add_run_parser, default_output
+from fastdet.cli.run import ProgressBar, add_run_parser, default_output
 from fastdet.video.config import TrackConfig
 from fastdet.video.pipeline import VideoPipeline
+from fastdet.video.sink import VideoSink
 
 
 @pytest.fixture
@@ -100,6 +104,44 @@ def test_run_writes_annotated_video_and_detections(fastdet, model_args, data_dir
     assert summary[0].startswith("38 frames, ") and "ms/frame: decode" in summary[0]
 
 
+def test_run_output_is_h264_yuv420p_with_the_index_first(fastdet, model_args, data_dir,
+                                                         tmp_path):
+    out = tmp_path / "out.mp4"
+    assert fastdet(["run", str(data_dir / "test_video.mp4"), "--out", str(out), "--quiet",
+                    *model_args]) == 0
+    with av.open(str(out)) as container:
+        stream = container.streams.video[0]
+        assert stream.codec_context.name == "h264"
+        assert stream.codec_context.pix_fmt == "yuv420p"
+        assert sum(1 for _ in container.decode(stream)) == 38
+    data = out.read_bytes()
+    # Top-level boxes: the index (moov) precedes the media data (mdat), so browsers stream it.
+    boxes, offset = [], 0
+    while offset + 8 <= len(data):
+        size = int.from_bytes(data[offset:offset + 4], "big")
+        boxes.append(data[offset + 4:offset + 8].decode("latin-1"))
+        offset += size
+    assert boxes[0] == "ftyp" and boxes.index("moov") < boxes.index("mdat")
+
+
+def test_run_reads_a_udp_stream_and_prints_the_plan(fastdet, stub_pipeline, tmp_path, capsys):
+    h264 = tmp_path / "blocks.mp4"    # H.264 repeats its headers: a receiver may join late
+    frames, _ = moving_block(12)
+    with VideoSink(h264, 10.0, (frames[0].shape[1], frames[0].shape[0])) as sink:
+        for frame in frames:
+            sink.write(frame)
+    port = free_port(socket.SOCK_DGRAM)
+    dets = tmp_path / "d.jsonl"
+    with UdpSender(mpegts_bytes(h264), port, seconds=3.0):
+        code = fastdet(["--verbose", "run", f"udp://127.0.0.1:{port}", "--detections", str(dets),
+                        "--timeout", "1.5"])
+    assert code == 0
+    captured = capsys.readouterr()
+    assert "threads: " in captured.err and "decoder" in captured.err
+    assert "stream ended" in captured.out
+    assert len(dets.read_text().splitlines()) >= 12
+
+
 @pytest.mark.parametrize("options", [["--every", "5"], ["--track"]])
 def test_run_modes_on_the_real_video(fastdet, model_args, data_dir, tmp_path, options):
     dets = tmp_path / "dets.csv"
@@ -155,15 +197,25 @@ def test_quiet_and_non_terminal_runs_print_no_progress(fastdet, stub_pipeline, b
     assert capsys.readouterr().err == ""     # stderr is not a terminal here
 
 
-def test_progress_bar_shows_frames_and_fps():
+def test_progress_bar_shows_frames_fps_and_time_left(monkeypatch):
+    clock = iter(float(t) for t in range(100))
+    monkeypatch.setattr("tqdm.std.time", lambda: next(clock))   # one second per call
     stream = io.StringIO()
-    bar = Progress(10, enabled=True, stream=stream)
-    bar.update(4, 31.25, force=True)
-    assert stream.getvalue() == "\rframe 4/10 [############..................]  31.2 fps"
-    bar.clear()
-    assert stream.getvalue().endswith("\r\x1b[K")
+    bar = ProgressBar(enabled=True, stream=stream)
+    bar.update(4, 10)
+    bar.update(8, 10)
+    shown = stream.getvalue().split("\r")[-1]
+    assert "8/10" in shown and "frames/s" in shown and "<00:" in shown   # time left
+    bar.close()
+    live = io.StringIO()
+    bar = ProgressBar(enabled=True, stream=live)
+    bar.update(4, None)
+    bar.update(9, None)
+    shown = live.getvalue().split("\r")[-1]
+    assert "9 frames" in shown and "frames/s" in shown and "<" not in shown   # no end, no ETA
+    bar.close()
     silent = io.StringIO()
-    Progress(10, enabled=False, stream=silent).update(4, 30.0, force=True)
+    ProgressBar(enabled=False, stream=silent).update(4, 10)
     assert silent.getvalue() == ""
 
 

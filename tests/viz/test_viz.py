@@ -327,3 +327,38 @@ def test_errors_reach_the_command_line_as_one_line(tmp_path, capsys):
     assert main(["viz", "hog", str(tmp_path / "nope.jpg")]) == 2
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and error.startswith("fastdet: error: image not found")
+
+
+# -- drawing on yuv420p planes ------------------------------------------------------------
+def test_bgr_to_yuv_matches_opencv_bt601():
+    from fastdet.viz.draw import bgr_to_yuv
+
+    for colour in ((255, 255, 255), (0, 0, 0), (0, 0, 255), (0, 200, 0), (255, 0, 0),
+                   (0, 128, 255)):
+        patch = np.full((2, 2, 3), colour, np.uint8)
+        i420 = cv2.cvtColor(patch, cv2.COLOR_BGR2YUV_I420).ravel()   # Y x4, U, V
+        assert np.abs(np.array(bgr_to_yuv(colour)) - i420[[0, 4, 5]]).max() <= 1
+    assert bgr_to_yuv((255, 255, 255), bt709=True) == (235, 128, 128)
+
+
+def test_boxes_drawn_on_yuv_planes_look_like_boxes_drawn_on_bgr():
+    from fastdet.detector.detections import Detections
+    from fastdet.viz.draw import draw_detections_inplace, draw_detections_yuv420
+
+    grey = np.full((120, 160, 3), 90, np.uint8)
+    detections = Detections(np.array([[20, 30, 80, 90], [100, 40, 150, 100]], np.int32),
+                            np.array([1.5, 2.5], np.float32), np.array([1, 2]))
+    drawn_bgr = draw_detections_inplace(grey.copy(), detections)
+    i420 = cv2.cvtColor(grey, cv2.COLOR_BGR2YUV_I420)
+    luma, chroma = i420[:120], i420[120:].reshape(2, 60, 80)
+    draw_detections_yuv420(luma, chroma[0], chroma[1], detections)
+    drawn_yuv = cv2.cvtColor(i420, cv2.COLOR_YUV2BGR_I420)
+    # Below the labels (rows 40 on) only the boxes' lines change, the same pixels in both
+    # but for a pixel of colour beside some lines: chroma has half the resolution.
+    changed_bgr = np.abs(drawn_bgr[40:].astype(int) - grey[40:]).max(axis=2) > 40
+    changed_yuv = np.abs(drawn_yuv[40:].astype(int) - grey[40:]).max(axis=2) > 40
+    assert changed_bgr.sum() > 300
+    assert (changed_bgr & changed_yuv).sum() > 0.9 * changed_bgr.sum()
+    assert (changed_yuv & ~changed_bgr).sum() < 0.25 * changed_bgr.sum()
+    for x, y in ((20, 60), (100, 70)):           # a point on each box's left edge
+        assert np.abs(drawn_yuv[y, x].astype(int) - drawn_bgr[y, x]).max() < 40

@@ -1,0 +1,294 @@
+"""Video output on PyAV: H.264 that plays in a browser, written atomically.
+
+:class:`VideoSink` encodes frames (BGR arrays or decoded ``av.VideoFrame``
+objects) to a temporary file beside the destination and renames it into
+place when complete (:class:`~fastdet.files.atomic.StagedFile`).  The default
+is what every browser and most tools play: H.264 (libx264), yuv420p, in an
+MP4 whose index (the moov atom) comes before the media data (``+faststart``),
+so the file streams.
+
+Odd sizes: yuv420p stores colour at half resolution, so H.264, HEVC, AV1,
+VP9 and MPEG-4 need an even width and height.  A frame with an odd width or
+height is padded by one column on the right and/or one row at the bottom,
+copies of the last column or row; the picture is never rescaled (an
+853x480 input gives an 854x480 output whose first 853 columns are the input).
+
+Timestamps: frames are written with the ``pts`` they are given (in the
+sink's ``time_base``, e.g. the input stream's), so variable and non-integer
+frame rates (29.97 = 30000/1001) are kept; without one a frame is placed
+one frame period after the previous.  Timestamps always increase: one that
+does not is moved just after the previous frame.
+"""
+
+from __future__ import annotations
+
+import os
+from fractions import Fraction
+
+import av
+import cv2
+import numpy as np
+from av.video.reformatter import VideoReformatter
+
+from ..errors import InputError
+from ..files.atomic import StagedFile
+from .frame_arrays import plane_view
+
+#: ``--codec`` names and the FFmpeg encoder behind each.
+ENCODERS = {"h264": "libx264", "hevc": "libx265", "av1": "libsvtav1", "vp9": "libvpx-vp9",
+            "mp4v": "mpeg4"}
+#: Default quality (crf; for mp4v the fixed quantiser 2-31) and speed preset per codec,
+#: chosen to keep up with detection on a 1280x720 stream (see README, "Video").
+DEFAULT_CRF = {"h264": 23, "hevc": 28, "av1": 35, "vp9": 35, "mp4v": 5}
+DEFAULT_PRESET = {"h264": "ultrafast", "hevc": "ultrafast", "av1": "12", "vp9": "8"}
+#: Containers by suffix; MP4 and QuickTime files get their index first.
+CONTAINERS = {".mp4": "mp4", ".m4v": "mp4", ".mov": "mov", ".mkv": "matroska",
+              ".webm": "webm", ".avi": "avi"}
+FASTSTART = frozenset({"mp4", "mov"})
+
+# FFmpeg's colour tags (AVColorSpace etc.): what the BGR -> YUV conversion used.
+_BT709, _UNSPECIFIED, _SMPTE170M, _LIMITED_RANGE = 1, 2, 6, 1
+
+
+def even(n):
+    """``n`` rounded up to an even number."""
+    return n + (n & 1)
+
+
+def codec_options(codec, crf=None, preset=None, threads=1):
+    """FFmpeg encoder options for ``--codec/--crf/--preset``.
+
+    Raises
+    ------
+    InputError
+        For an unknown codec, one the installed FFmpeg lacks, or a preset
+        given to mp4v (which has none).
+    """
+    if codec not in ENCODERS:
+        raise InputError(f"unknown codec {codec!r} (choose from {', '.join(available_codecs())})")
+    if ENCODERS[codec] not in av.codecs_available:
+        raise InputError(f"this FFmpeg cannot encode {codec} ({ENCODERS[codec]} is missing)")
+    crf = DEFAULT_CRF[codec] if crf is None else crf
+    if codec == "mp4v":
+        if preset is not None:
+            raise InputError("--preset does not apply to mp4v")
+        if not 2 <= crf <= 31:
+            raise InputError(f"mp4v quality (--crf) must be 2-31, got {crf}")
+        return {"qmin": str(crf), "qmax": str(crf)}
+    preset = DEFAULT_PRESET[codec] if preset is None else str(preset)
+    if codec == "vp9":
+        return {"crf": str(crf), "b": "0", "deadline": "realtime", "cpu-used": preset,
+                "row-mt": "1"}
+    options = {"crf": str(crf), "preset": preset}
+    if codec == "hevc":
+        options["x265-params"] = f"log-level=error:pools={threads}:frame-threads={threads}"
+    return options
+
+
+def available_codecs():
+    """The ``--codec`` names this installation's FFmpeg can encode."""
+    return [name for name, encoder in ENCODERS.items() if encoder in av.codecs_available]
+
+
+def pad_to_even(image):
+    """An (H, W[, C]) array padded to even H and W with copies of its last row/column."""
+    height, width = image.shape[:2]
+    if height % 2 == 0 and width % 2 == 0:
+        return image
+    padded = np.empty((even(height), even(width)) + image.shape[2:], image.dtype)
+    padded[:height, :width] = image
+    padded[:height, width:] = image[:, width - 1:]
+    padded[height:] = padded[height - 1:height]
+    return padded
+
+
+def _padded_yuv420p(frame):
+    """A yuv420p frame with odd sides padded to even (see the module's rule)."""
+    if frame.width % 2 == 0 and frame.height % 2 == 0:
+        return frame
+    padded = av.VideoFrame(even(frame.width), even(frame.height), "yuv420p")
+    for index in range(3):
+        source, target = plane_view(frame, index), plane_view(padded, index)
+        # Chroma planes already have ceil(side / 2) rows and columns: only luma grows.
+        target[:] = source if source.shape == target.shape else pad_to_even(source)
+    padded.pts, padded.time_base = frame.pts, frame.time_base
+    padded.colorspace, padded.color_range = frame.colorspace, frame.color_range
+    return padded
+
+
+class VideoSink(StagedFile):
+    """A video file written atomically: H.264, yuv420p, index first by default.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination; its suffix chooses the container (``.mp4``, ``.mov``,
+        ``.mkv``, ``.webm``, ``.avi``).
+    fps : float or Fraction
+        Nominal frame rate (``Fraction(30000, 1001)`` for 29.97).
+    size : tuple of int
+        ``(width, height)`` of the frames to be written (odd sides are padded).
+    codec : {'h264', 'hevc', 'av1', 'vp9', 'mp4v'}
+    crf : int, optional
+        Quality (lower is better and bigger); for mp4v the fixed quantiser.
+    preset : str, optional
+        Encoder speed preset (x264/x265 names, SVT-AV1 and VP9 numbers).
+    threads : int
+        Encoder threads.
+    time_base : Fraction, optional
+        Unit of the ``pts`` given to :meth:`write` (default ``1 / fps``).
+    colour : tuple of int, optional
+        The input's colour tags (:attr:`VideoSource.colour`), kept in the
+        output so that its decoded frames pass through unconverted.
+        Default: BT.601 limited range, what BGR frames are converted with.
+
+    Raises
+    ------
+    InputError
+        When the destination cannot be written or the codec cannot be opened.
+
+    Examples
+    --------
+    >>> with VideoSink("out.mp4", 25, (1280, 720)) as sink:   # doctest: +SKIP
+    ...     for frame in frames:                              # BGR uint8 arrays
+    ...         sink.write(frame)
+    """
+
+    def __init__(self, path, fps, size, codec="h264", crf=None, preset=None, threads=1,
+                 time_base=None, colour=None):
+        options = codec_options(codec, crf, preset, threads)
+        super().__init__(path)
+        container_format = CONTAINERS.get(self.path.suffix.lower())
+        if container_format is None:
+            self.discard()
+            raise InputError(f"cannot write a video to {path} (unsupported suffix; use one of "
+                             f"{', '.join(CONTAINERS)})")
+        self.codec = codec
+        self.size = (int(size[0]), int(size[1]))
+        self.rate = Fraction(fps).limit_denominator(1001000)
+        self.time_base = Fraction(time_base) if time_base is not None else 1 / self.rate
+        self.frames = 0
+        self._last_pts = None
+        self._reformatter = VideoReformatter()
+        tags = _colour_tags(colour)
+        #: Whether the output is tagged with (and BGR frames converted by) the BT.709 matrix.
+        self.bt709 = tags[0] == _BT709
+        try:
+            self._open(container_format, options, threads, tags)
+        except (av.error.FFmpegError, OSError, ValueError) as exc:
+            self.discard()
+            raise InputError(f"cannot write a {codec} video to {self.path}: "
+                             f"{getattr(exc, 'strerror', None) or exc}") from None
+
+    def _open(self, container_format, options, threads, tags):
+        if self.codec == "av1":
+            os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its banner to stderr
+        container_options = {"movflags": "+faststart"} if container_format in FASTSTART else {}
+        self._container = av.open(str(self.temporary), "w", format=container_format,
+                                  container_options=container_options)
+        stream = self._container.add_stream(ENCODERS[self.codec], rate=self.rate,
+                                            options=options)
+        stream.width, stream.height = even(self.size[0]), even(self.size[1])
+        stream.pix_fmt = "yuv420p"
+        if self.codec == "hevc" and container_format in FASTSTART:
+            stream.codec_tag = "hvc1"  # the tag Apple's players require
+        context = stream.codec_context
+        context.time_base = self.time_base
+        context.thread_count = threads
+        (context.colorspace, context.color_range, context.color_primaries,
+         context.color_trc) = tags
+        context.open()  # fail now, before any frame, on a bad size or option
+        if context.options:
+            # FFmpeg leaves the options it did not understand here, silently otherwise.
+            raise ValueError(f"the encoder ignores {', '.join(sorted(context.options))}")
+        self._stream = stream
+
+    # -- writing --------------------------------------------------------------------
+    def write(self, frame, pts=None):
+        """Encode one frame.
+
+        Parameters
+        ----------
+        frame : ndarray or av.VideoFrame
+            A BGR uint8 ``(height, width, 3)`` array, or a decoded frame of the
+            sink's size (yuv420p frames are encoded as they are).
+        pts : int, optional
+            Presentation time in :attr:`time_base` units; default: one frame
+            period after the previous frame.
+        """
+        if isinstance(frame, np.ndarray):
+            video_frame = self._from_bgr(frame)
+        else:
+            if (frame.width, frame.height) != self.size:
+                raise InputError(f"frame of {frame.width}x{frame.height} does not fit a "
+                                 f"{self.size[0]}x{self.size[1]} video")
+            video_frame = frame
+            if frame.format.name != "yuv420p":
+                video_frame = self._reformatter.reformat(frame, format="yuv420p", threads=1)
+            video_frame = _padded_yuv420p(video_frame)
+        video_frame.pts = self._next_pts(pts)
+        video_frame.time_base = self.time_base
+        # A decoded frame's picture type would force the encoder's choice.
+        video_frame.pict_type = av.video.frame.PictureType.NONE
+        try:
+            self._container.mux(self._stream.encode(video_frame))
+        except (av.error.FFmpegError, OSError) as exc:
+            raise InputError(f"cannot write a video to {self.path}: "
+                             f"{getattr(exc, 'strerror', None) or exc}") from None
+        self.frames += 1
+
+    def _from_bgr(self, frame):
+        if frame.dtype != np.uint8 or frame.shape != (self.size[1], self.size[0], 3):
+            raise InputError(f"frame of shape {frame.shape} does not fit a "
+                             f"{self.size[0]}x{self.size[1]} video")
+        frame = pad_to_even(frame)
+        if not self.bt709:
+            # OpenCV's conversion is BT.601 limited range, several times faster than swscale's.
+            yuv = cv2.cvtColor(frame, cv2.COLOR_BGR2YUV_I420)
+            return av.VideoFrame.from_numpy_buffer(yuv, format="yuv420p")
+        bgr = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="bgr24")
+        return self._reformatter.reformat(bgr, format="yuv420p", dst_colorspace="ITU709",
+                                          dst_color_range="MPEG", threads=1)
+
+    def _next_pts(self, pts):
+        if pts is None:
+            step = max(1, round(1 / (self.rate * self.time_base)))
+            pts = 0 if self._last_pts is None else self._last_pts + step
+        pts = int(pts)
+        if self._last_pts is not None and pts <= self._last_pts:
+            pts = self._last_pts + 1
+        self._last_pts = pts
+        return pts
+
+    # -- finishing ------------------------------------------------------------------
+    def close(self):
+        """Finish the video and move it into place (a video without frames is discarded)."""
+        if self.frames == 0:
+            self.discard()
+        else:
+            super().close()
+
+    def _finish(self):
+        try:
+            self._container.mux(self._stream.encode(None))
+            self._container.close()  # writes the index, moved to the front (faststart)
+        except (av.error.FFmpegError, OSError) as exc:
+            raise InputError(f"cannot finish the video {self.path}: "
+                             f"{getattr(exc, 'strerror', None) or exc}") from None
+
+    def _abandon(self):
+        container = getattr(self, "_container", None)
+        if container is not None:
+            container.close()
+
+
+def _colour_tags(colour):
+    """``(matrix, range, primaries, transfer)`` to tag the output with."""
+    matrix = None if colour is None else colour[0]
+    if matrix == _BT709:
+        return (_BT709, _LIMITED_RANGE, _BT709, _BT709)
+    if matrix == _UNSPECIFIED:
+        # Untagged input stays untagged: players then guess as they did for the input.
+        return (_UNSPECIFIED, _LIMITED_RANGE, _UNSPECIFIED, _UNSPECIFIED)
+    # BT.601 (SMPTE 170M) for converted BGR frames and for other inputs.
+    return (_SMPTE170M, _LIMITED_RANGE, _SMPTE170M, _SMPTE170M)

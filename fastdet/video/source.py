@@ -1,0 +1,384 @@
+"""Video input on PyAV (FFmpeg): files, network streams and cameras.
+
+:class:`VideoSource` decodes the first video stream of a file, an
+``http(s)://``, ``rtsp://``, ``udp://`` or ``tcp://`` URL, or a camera
+(``/dev/videoN`` or its index ``N``) one frame at a time, so memory does not
+grow with the video's length.  It reads the first frame at opening: every
+problem with the input (missing, not a video, no frames, nothing received
+within the timeout, ``start`` past the end) is reported as one
+:class:`~fastdet.errors.InputError` line before any output exists.
+
+Decoding uses FFmpeg's own threads; the frames come out as BGR uint8
+arrays (OpenCV's convention, the same pixels ``cv2.VideoCapture`` gives) or,
+for the pipelined run, as decoded ``av.VideoFrame`` objects that
+:class:`~fastdet.video.frame_arrays.FrameConverter` turns into BGR, whole or only the rows the detector
+searches.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from fractions import Fraction
+from pathlib import Path
+from urllib.parse import urlparse
+
+import av
+
+from ..errors import InputError
+from .frame_arrays import FrameConverter
+from .seek import REORDER_SLACK, seek_point
+
+#: Frame rate assumed when a video states none.
+FALLBACK_FPS = 25.0
+#: Suffixes FFmpeg would open as a one-frame "video"; they are images.
+IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".gif",
+                            ".ppm", ".pgm"})
+#: URL schemes of sources that have no end and no length.
+LIVE_SCHEMES = frozenset({"udp", "rtp", "rtsp", "rtsps", "rtmp", "srt", "tcp"})
+#: URL schemes handed to FFmpeg's network protocols.
+NETWORK_SCHEMES = LIVE_SCHEMES | {"http", "https"}
+#: Seconds to wait for a network source or camera to connect, and for each read.
+DEFAULT_TIMEOUT = 10.0
+
+
+def _source_kind(source):
+    """``(what av.open gets, its format or None, kind)``; kind: file, network or camera."""
+    if isinstance(source, int) or (isinstance(source, str) and source.isdigit()):
+        return f"/dev/video{int(source)}", "v4l2", "camera"
+    text = os.fspath(source)
+    if text.startswith("/dev/video"):
+        return text, "v4l2", "camera"
+    scheme = urlparse(text).scheme.lower()
+    if scheme in NETWORK_SCHEMES:
+        return text, None, "network"
+    return text, None, "file"
+
+
+def _protocol_options(url, timeout):
+    """FFmpeg options that bound each read of a network protocol by ``timeout`` seconds."""
+    scheme = urlparse(url).scheme.lower()
+    if timeout is None:
+        return {"rtsp_transport": "tcp"} if scheme.startswith("rtsp") else {}
+    micros = str(int(timeout * 1e6))
+    if scheme.startswith("rtsp"):
+        # TCP interleaving: no lost packets; "timeout" is the socket's I/O timeout.
+        return {"rtsp_transport": "tcp", "timeout": micros}
+    if scheme == "udp":
+        # The UDP protocol's own timeout ends in a bare EIO; PyAV's read timeout
+        # (an interrupt callback) bounds it instead.  A full kernel buffer drops
+        # packets rather than failing the stream.
+        return {"overrun_nonfatal": "1", "fifo_size": "50000"}
+    return {"rw_timeout": micros}
+
+
+def _reason(exc):
+    """FFmpeg's error as a short phrase (no errno, no repeated URL)."""
+    if isinstance(exc, (av.error.ExitError, TimeoutError)):
+        return "no data within the timeout (is the source there?)"
+    text = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+    return " ".join(str(text).split())
+
+
+def frame_rate(stream):
+    """The stream's frame rate as a Fraction (its average rate; ``None`` if it states none)."""
+    for rate in (stream.average_rate, stream.guessed_rate, stream.base_rate):
+        if rate and 0 < rate < 1000:
+            return Fraction(rate)
+    return None
+
+
+class VideoSource:
+    """Frames of a video file, network stream or camera, decoded one at a time.
+
+    Parameters
+    ----------
+    source : str, Path or int
+        A file, an ``http(s)://``, ``rtsp://``, ``udp://`` or ``tcp://`` URL,
+        a camera device ``/dev/videoN`` or a camera index ``N``.
+    start : int
+        Index of the first frame to yield (frames count from 0).  A file is
+        decoded from the keyframe before it, found from its packets and
+        checked frame by frame (:mod:`.seek`); anything else, and any file
+        where a check fails, from the beginning: indices are exact either way.
+    end : int, optional
+        Index one past the last frame to yield; the stream's end by default.
+    threads : int, optional
+        Decoder threads (FFmpeg's frame and slice threads); default: FFmpeg's
+        choice.
+    timeout : float or None
+        Seconds to wait for a network source or camera to connect, and for
+        each read after that (``None``: forever).
+
+    Attributes
+    ----------
+    name : str
+        The source as given, for messages.
+    fps : float
+        Frames per second stated by the stream (``FALLBACK_FPS`` if none).
+    rate : Fraction
+        The same as an exact fraction (``30000/1001`` for 29.97 fps).
+    time_base : Fraction
+        Unit of the frames' ``pts``.
+    size : tuple of int
+        ``(width, height)``.
+    frame_count : int or None
+        Frames in the whole stream as its header states them; ``None`` for a
+        live source or when unknown.
+    live : bool
+        A stream without an end (UDP, RTSP, TCP, a camera, ...).
+    colour : tuple of int
+        FFmpeg's colour matrix and range tags of the frames (``(1, 1)``:
+        BT.709, limited range), for a :class:`~fastdet.video.sink.VideoSink`
+        that passes decoded frames through.
+
+    Raises
+    ------
+    InputError
+        With a one-line message when the source cannot be opened, holds no
+        frames, sends nothing within ``timeout``, or ``start`` lies past its end.
+
+    Examples
+    --------
+    >>> with VideoSource("clip.mp4") as video:              # doctest: +SKIP
+    ...     print(video.fps, video.size, video.frame_count)
+    ...     for frame in video:                             # BGR uint8 arrays
+    ...         ...
+    """
+
+    def __init__(self, source, start=0, end=None, *, threads=None, timeout=DEFAULT_TIMEOUT):
+        self.name = str(source)
+        self.start = int(start)
+        self.end = None if end is None else int(end)
+        if self.start < 0:
+            raise InputError(f"--start must be >= 0, got {self.start}")
+        if self.end is not None and self.end <= self.start:
+            raise InputError(f"--end ({self.end}) must be greater than --start ({self.start})")
+        url, fmt, self.kind = _source_kind(source)
+        self.url = url
+        self.path = Path(url) if self.kind == "file" else None
+        if self.kind == "file":
+            self._check_file()
+        options = _protocol_options(url, timeout) if self.kind == "network" else {}
+        self._open_arguments = (url, fmt, options, None if timeout is None else (timeout, timeout))
+        self._threads = threads
+        self._open()
+        try:
+            self._first = self._read_first()
+        except BaseException:
+            self._container.close()
+            raise
+        self.size = (self._first.width, self._first.height)
+        self.colour = (int(self._first.colorspace), int(self._first.color_range))
+        self._converter = FrameConverter()
+        self._first_bgr = None
+
+    # -- opening --------------------------------------------------------------------
+    def _open(self):
+        url, fmt, options, timeout = self._open_arguments
+        try:
+            self._container = av.open(url, format=fmt, options=options, timeout=timeout)
+        except (av.error.FFmpegError, OSError) as exc:
+            raise InputError(self._open_failure(exc)) from None
+        try:
+            self._open_stream(self._threads)
+        except BaseException:
+            self._container.close()
+            raise
+        self._decoded = self._frames_from_container()
+
+    def _check_file(self):
+        path = self.path
+        if not path.exists():
+            raise InputError(f"video not found: {path}")
+        if not path.is_file() and not path.is_char_device() and not path.is_fifo():
+            raise InputError(f"not a video file: {path}")
+        if path.suffix.lower() in IMAGE_SUFFIXES:
+            raise InputError(f"{path} is an image, not a video (use `fastdet detect`)")
+
+    def _open_failure(self, exc):
+        if self.kind == "file":
+            return f"cannot read {self.name} as a video (not a video file or corrupt)"
+        if self.kind == "camera" and isinstance(exc, FileNotFoundError):
+            return f"no camera at {self.url}"
+        return f"cannot open {self.name}: {_reason(exc)}"
+
+    def _open_stream(self, threads):
+        container = self._container
+        if not container.streams.video:
+            raise InputError(f"{self.name} holds no video stream")
+        stream = self._stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        if threads is not None:
+            stream.thread_count = int(threads)
+        self.rate = frame_rate(stream) or Fraction(FALLBACK_FPS)
+        self.fps = float(self.rate)
+        self.time_base = stream.time_base or 1 / self.rate
+        scheme = urlparse(self.name).scheme.lower()
+        self.live = (self.kind == "camera" or scheme in LIVE_SCHEMES
+                     or container.duration is None)
+        self.frame_count = None
+        self._count_from_index = False
+        if not self.live:
+            if stream.frames:
+                self.frame_count, self._count_from_index = int(stream.frames), True
+            elif container.duration:
+                # No index (MPEG-TS and some Matroska files): estimate from the duration.
+                self.frame_count = int(round(container.duration / 1e6 * self.fps))
+        self._index = 0
+        #: Why a live stream ended (``None`` while it runs, and for files).
+        self.ended = None
+
+    def _frames_from_container(self):
+        """Decoded frames in order, with read failures turned into :class:`InputError`."""
+        decoded = self._container.decode(self._stream)
+        while True:
+            try:
+                frame = next(decoded)
+            except StopIteration:
+                return
+            except (av.error.FFmpegError, OSError) as exc:
+                if self.live and self._index > 0 and isinstance(exc, (av.error.ExitError,
+                                                                      TimeoutError)):
+                    # A live stream has no end but silence.
+                    self.ended = f"no data from {self.name} within the timeout: stream ended"
+                    return
+                if self._index == 0:
+                    raise InputError(f"cannot read {self.name} as a video: "
+                                     f"{_reason(exc)}") from None
+                raise InputError(f"{self.name}: {_reason(exc)} after frame "
+                                 f"{self._index - 1}") from None
+            yield frame
+
+    def _read_first(self):
+        # Reading a frame is the only reliable test of "has frames": headers
+        # may be missing or wrong.
+        if self.kind == "file" and self.start > REORDER_SLACK:
+            frame = self._seek_to_start()
+            if frame is not None:
+                return frame
+            self._container.close()   # decode from the beginning instead
+            self._open()
+        for frame in self._decoded:
+            if self._index == self.start:
+                return frame
+            self._index += 1
+        if self.start == 0:
+            raise InputError(f"{self.name} holds no frames")
+        total = "" if self.frame_count is None else f" ({self.frame_count} frames)"
+        raise InputError(f"--start {self.start} is past the end of {self.name}{total}")
+
+    def _seek_to_start(self):
+        """Frame ``start`` decoded from the keyframe before it, or None if unsure (see seek)."""
+        point = seek_point(self._container, self._stream, self.start)
+        if point is None:
+            return None
+        try:
+            self._container.seek(point.keyframe_pts, stream=self._stream, backward=True,
+                                 any_frame=False)
+        except (av.error.FFmpegError, OSError):
+            return None
+        self._decoded = self._frames_from_container()
+        expected = iter(point.expected_pts)
+        index = point.keyframe_index
+        for frame in self._decoded:
+            if frame.pts is not None and frame.pts < point.keyframe_pts:
+                continue   # leading pictures of an open GOP: they belong before the keyframe
+            if frame.pts != next(expected, None):
+                return None
+            if index == self.start:
+                self._index = index
+                return frame
+            index += 1
+        return None
+
+    # -- frames ---------------------------------------------------------------------
+    @property
+    def first_frame(self):
+        """The first frame to yield as BGR, read at opening (``None`` once iteration began)."""
+        if self._first is None:
+            return None
+        if self._first_bgr is None:
+            self._first_bgr = self._converter.to_bgr(self._first)
+        return self._first_bgr
+
+    @property
+    def expected_frames(self):
+        """Frames this source should yield (``None`` if unknown, e.g. live)."""
+        last = self.frame_count
+        if self.end is not None:
+            last = self.end if last is None else min(last, self.end)
+        return None if last is None else max(last - self.start, 0)
+
+    def decoded_frames(self):
+        """Yield the decoded ``av.VideoFrame`` objects in order (no conversion).
+
+        A frame whose size differs from the first ends the stream with an
+        :class:`InputError`; so does a read failure after the first frame.
+        """
+        if self._container is None:
+            raise InputError(f"{self.name} is closed")
+        first, self._first = self._first, None
+        if first is not None:
+            self._index += 1
+            yield first
+        for frame in self._decoded:
+            if self.end is not None and self._index >= self.end:
+                return
+            if (frame.width, frame.height) != self.size:
+                raise InputError(f"{self.name}: the frame size changes from "
+                                 f"{self.size[0]}x{self.size[1]} to {frame.width}x{frame.height} "
+                                 f"at frame {self._index}")
+            self._index += 1
+            yield frame
+        last = self.frame_count if self.end is None else min(self.end, self.frame_count or 0)
+        if self._count_from_index and self._index < last:
+            # The index promised more: the file is cut short or its data is damaged.
+            raise InputError(f"{self.name}: the input breaks off after frame {self._index - 1} "
+                             f"of {self.frame_count} (truncated or corrupt)")
+
+    def __iter__(self):
+        """Yield BGR uint8 frames of shape (height, width, 3), in order."""
+        return self.frames()
+
+    def frames(self, skip=None):
+        """Yield the frames in order as BGR arrays, optionally without converting some.
+
+        Parameters
+        ----------
+        skip : callable, optional
+            Called before each frame after the first; when it returns True the
+            frame is decoded (the codec needs every frame) but not converted,
+            and ``None`` is yielded in its place.
+
+        Yields
+        ------
+        ndarray of uint8, shape (height, width, 3), or None
+        """
+        first_bgr = self.first_frame
+        for number, frame in enumerate(self.decoded_frames()):
+            if number == 0 and first_bgr is not None:
+                yield first_bgr
+            elif skip is not None and skip():
+                yield None
+            else:
+                yield self._converter.to_bgr(frame)
+
+    def close(self):
+        """Release the decoder and the connection (idempotent)."""
+        container = getattr(self, "_container", None)
+        if container is not None:
+            self._container = None
+            self._first = None
+            self._decoded.close()
+            container.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __del__(self):
+        with contextlib.suppress(Exception):
+            self.close()

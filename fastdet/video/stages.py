@@ -1,0 +1,391 @@
+"""The pipelined run: decode, detect+track, draw+encode and the detections file as stages.
+
+Each stage is a thread; bounded queues join them, so frames stay in order and
+memory stays flat whatever the video's length::
+
+    decode ──q──> detect+track ──q──> draw+encode      (with a video output)
+                               └─q──> detections file  (and the callback)
+
+Decoding, encoding, colour conversion and the detector's kernels release
+the GIL, so the stages overlap on the cores.  The stage threads are planned
+with the codecs' and the detector's own threads (:func:`plan_threads`) so
+that together they fit the cores instead of stacking.
+
+Stopping
+--------
+* An exception in any stage stops every stage; :meth:`Conveyor.run` raises
+  it once all have stopped.
+* :meth:`Conveyor.stop` (the first Ctrl-C or SIGTERM) stops decoding; the
+  frames already decoded flow through to both outputs, so both end with the
+  same, complete frames.
+* :meth:`Conveyor.abort` (a second signal) stops every stage at once.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import queue
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from av.video.reformatter import VideoReformatter
+
+from ..detector.scoring import STAGES
+from ..errors import InputError
+from ..viz.draw import debug_frame, draw_detections_yuv420
+from .frame_arrays import FrameConverter, plane_view
+
+#: Frames each queue holds: enough to ride out one slow frame, few enough for flat memory.
+QUEUE_FRAMES = 4
+#: Seconds a blocked stage waits before looking at the stop/abort flags again.
+POLL_SECONDS = 0.1
+#: Marks the end of the frame stream.
+END = object()
+
+#: Per-frame CPU milliseconds of each kind of work on one 1280x720 frame on one core, as
+#: measured on the development machine (README, "Video"); only their ratios matter.
+_DECODE_MS, _SEARCH_MS, _ENCODE_MS = 3.7, 4.5, 4.5
+
+
+class Aborted(Exception):
+    """Raised inside a stage when another stage failed or the run was aborted."""
+
+
+@dataclass(frozen=True)
+class ThreadPlan:
+    """Threads given to each kind of work so that together they fit ``cores``."""
+
+    cores: int
+    decoder: int
+    detector: int
+    encoder: int
+
+    def describe(self):
+        """One line for ``--verbose``."""
+        encoder = f", encoder {self.encoder}" if self.encoder else ""
+        return (f"threads: {self.cores} cores -> decoder {self.decoder}, detector "
+                f"{self.detector}{encoder} (plus one light thread per stage)")
+
+
+def plan_threads(cores, video=True, search_fraction=1.0):
+    """Share ``cores`` between the decoder, the detector and the encoder by their load.
+
+    Parameters
+    ----------
+    cores : int
+        Threads the whole run may keep busy.
+    video : bool
+        Whether an annotated video is encoded.
+    search_fraction : float
+        Share of frames fully searched (``1 / every``).
+
+    Returns
+    -------
+    ThreadPlan
+        Each part's share of the cores is its share of the per-frame CPU time,
+        rounded, and at least one thread; the heaviest part, which bounds the
+        run, gets its share rounded up.  On 2 cores: decoder, detector and
+        encoder one each with a video output; without one, the detector two
+        (every frame searched) or the decoder two (``--every 5``).  Measured on
+        the 2-core development machine (README, "Video").
+    """
+    cores = max(1, int(cores))
+    loads = {"decoder": _DECODE_MS, "detector": _SEARCH_MS * max(search_fraction, 0.05),
+             "encoder": _ENCODE_MS if video else 0.0}
+    total = sum(loads.values())
+    shares = {name: cores * load / total for name, load in loads.items()}
+    threads = {name: max(1, round(share)) if share else 0 for name, share in shares.items()}
+    # The heaviest part bounds the run: it may also use what the others leave idle.
+    heaviest = max(shares, key=shares.get)
+    threads[heaviest] = max(threads[heaviest], math.ceil(shares[heaviest]))
+    return ThreadPlan(cores, threads["decoder"], threads["detector"], threads.get("encoder", 0))
+
+
+@dataclass
+class StageClock:
+    """Where one stage's time went: CPU of its thread, and waiting on its neighbours."""
+
+    cpu: float = 0.0
+    starved: float = 0.0   # waiting for input
+    blocked: float = 0.0   # waiting for room downstream
+
+
+@dataclass
+class StageTimes:
+    """Clocks of every stage of a run, by stage name, and the process's CPU."""
+
+    stages: dict = field(default_factory=dict)
+    process_cpu: float = 0.0
+
+    def bound(self):
+        """The stage that limited the run: the one that waited least."""
+        if not self.stages:
+            return None
+        return min(self.stages, key=lambda n: self.stages[n].starved + self.stages[n].blocked)
+
+
+class Conveyor:
+    """Stage threads joined by bounded queues, with shared stop and abort flags.
+
+    Stage functions receive the conveyor and use :meth:`get` and :meth:`put`
+    on its queues; both give up with :class:`Aborted` when any stage failed.
+    """
+
+    def __init__(self):
+        self.stopping = threading.Event()
+        self._aborting = threading.Event()
+        self._threads = []
+        self._errors = []
+        self._unread = set()    # queues whose consumer has stopped
+        self.times = StageTimes()
+        #: True while :meth:`run` waits for the stages.
+        self.running = False
+
+    # -- queues -----------------------------------------------------------------
+    def queue(self, size=QUEUE_FRAMES):
+        """A new bounded queue between two stages."""
+        return queue.Queue(maxsize=size)
+
+    def get(self, source, clock):
+        """The next item of ``source``; raises :class:`Aborted` once the run aborts."""
+        start = time.perf_counter()
+        try:
+            while True:
+                if self._aborting.is_set():
+                    raise Aborted
+                try:
+                    return source.get(timeout=POLL_SECONDS)
+                except queue.Empty:
+                    continue
+        finally:
+            clock.starved += time.perf_counter() - start
+
+    def put(self, target, item, clock):
+        """Put ``item`` on ``target``, waiting for room; raises :class:`Aborted` on abort.
+
+        An item for a stage that has stopped reading is dropped.
+        """
+        start = time.perf_counter()
+        try:
+            while True:
+                if self._aborting.is_set():
+                    raise Aborted
+                if id(target) in self._unread:
+                    return
+                try:
+                    target.put(item, timeout=POLL_SECONDS)
+                    return
+                except queue.Full:
+                    continue
+        finally:
+            clock.blocked += time.perf_counter() - start
+
+    # -- stages -----------------------------------------------------------------
+    def add(self, name, function, *args, inbox=None):
+        """Run ``function(clock, *args)`` on its own thread once :meth:`run` starts.
+
+        ``inbox`` is the queue the stage reads: once the stage ends, items put
+        there are dropped instead of waiting for room forever.
+        """
+        clock = self.times.stages[name] = StageClock()
+
+        def body():
+            cpu = time.thread_time()
+            try:
+                function(clock, *args)
+            except Aborted:
+                pass
+            except BaseException as exc:  # noqa: BLE001 - re-raised by run()
+                self._errors.append(exc)
+                self.abort()
+            finally:
+                if inbox is not None:
+                    self._unread.add(id(inbox))
+                clock.cpu = time.thread_time() - cpu
+
+        self._threads.append(threading.Thread(target=body, name=f"fastdet-{name}", daemon=True))
+
+    def stop(self):
+        """Stop reading input; what was read still goes through every stage."""
+        self.stopping.set()
+
+    def abort(self):
+        """Stop every stage now."""
+        self.stopping.set()
+        self._aborting.set()
+
+    @property
+    def aborted(self):
+        return self._aborting.is_set()
+
+    def run(self, on_tick=None):
+        """Start every stage and wait for all of them.
+
+        Parameters
+        ----------
+        on_tick : callable, optional
+            Called about 10 times a second on the calling thread while the
+            stages run (progress display); signal handlers run between ticks.
+
+        Raises
+        ------
+        BaseException
+            The first error of any stage, once every stage has stopped.
+        """
+        cpu = time.process_time()
+        self.running = True
+        for thread in self._threads:
+            thread.start()
+        try:
+            for thread in self._threads:
+                while thread.is_alive():
+                    thread.join(POLL_SECONDS)
+                    if on_tick is not None:
+                        on_tick()
+        except BaseException:
+            self.abort()
+            for thread in self._threads:
+                thread.join()
+            raise
+        finally:
+            self.running = False
+            self.times.process_cpu = time.process_time() - cpu
+        if self._errors:
+            raise self._errors[0]
+
+
+# -- the stages of a run -------------------------------------------------------------
+def _debug_view(frame, detections, pipeline):
+    """The frame with boxes, the live heat map inset and the detector's stage timings."""
+    heat = np.zeros(frame.shape[:2], np.float32)
+    if pipeline.last_heat is not None:
+        region, (x0, y0) = pipeline.last_heat
+        h = min(region.shape[0], heat.shape[0] - y0)
+        w = min(region.shape[1], heat.shape[1] - x0)
+        if h > 0 and w > 0:
+            heat[y0:y0 + h, x0:x0 + w] = region[:h, :w]
+    timings = pipeline.detector.timings
+    timings_ms = {stage: 1e3 * timings[stage] for stage in STAGES if stage in timings}
+    # A fixed scale keeps the inset's brightness from pumping with each frame's peak.
+    scale = 4 * pipeline.detector.config.heat.threshold or None
+    return debug_frame(frame, detections, heat, timings_ms, heat_max=scale)
+
+
+def decode(clock, conveyor, source, outbox, realtime, stats):
+    """Decoded frames onto ``outbox``; with ``realtime``, never wait: drop the oldest."""
+    frames = source.decoded_frames()
+    paced = realtime and not source.live
+    started = first_pts = None
+    try:
+        for index, frame in enumerate(frames, source.start):
+            if conveyor.stopping.is_set():
+                break
+            if paced and frame.pts is not None:
+                # A file read "live": at its own frame rate.
+                started = time.perf_counter() if started is None else started
+                first_pts = frame.pts if first_pts is None else first_pts
+                delay = started + float((frame.pts - first_pts) * source.time_base)
+                while not conveyor.stopping.is_set() and time.perf_counter() < delay:
+                    time.sleep(min(0.01, delay - time.perf_counter()))
+            if realtime:
+                stats.dropped += _put_newest(outbox, (index, frame))
+            else:
+                conveyor.put(outbox, (index, frame), clock)
+    except InputError as exc:
+        # The input broke off: every frame before it is good and goes to the outputs.
+        stats.ended = str(exc)
+    finally:
+        frames.close()
+    stats.ended = stats.ended or source.ended
+    conveyor.put(outbox, END, clock)
+
+
+def _put_newest(outbox, item):
+    """Put ``item`` without waiting, dropping the oldest queued frame if full; frames dropped."""
+    dropped = 0
+    while True:
+        try:
+            outbox.put_nowait(item)
+            return dropped
+        except queue.Full:
+            with contextlib.suppress(queue.Empty):
+                outbox.get_nowait()
+                dropped += 1
+
+
+def detect(clock, conveyor, inbox, outboxes, pipeline, rows, debug_view, first_output, stats):
+    """Detection and tracking, in frame order; warm-up frames only update the state."""
+    converter = FrameConverter()
+    while True:
+        item = conveyor.get(inbox, clock)
+        if item is END:
+            break
+        index, frame = item
+        bgr = None
+        if debug_view or pipeline.wants_frame:
+            bgr = converter.to_bgr(frame, None if debug_view else rows)
+        try:
+            detections = pipeline.process(bgr)
+        except KeyboardInterrupt:
+            # Raised on this thread (e.g. by a callback of the caller's pipeline):
+            # a stop like Ctrl-C; the frames before it still reach the outputs.
+            stats.interrupted = stats.interrupted or signal.SIGINT
+            conveyor.stop()
+            break
+        if index < first_output:
+            continue
+        picture = _debug_view(bgr, detections, pipeline) if debug_view else None
+        for outbox in outboxes:
+            conveyor.put(outbox, (index, frame, picture, detections), clock)
+    stats.full_searches = pipeline.full_searches
+    for outbox in outboxes:
+        conveyor.put(outbox, END, clock)
+
+
+def encode(clock, conveyor, inbox, sink):
+    """Boxes drawn on the decoded planes (or the debug picture), encoded in order."""
+    reformatter = VideoReformatter()
+    first_pts = None
+    while True:
+        item = conveyor.get(inbox, clock)
+        if item is END:
+            return
+        _, frame, picture, detections = item
+        pts = None
+        if frame.pts is not None:
+            first_pts = frame.pts if first_pts is None else first_pts
+            pts = frame.pts - first_pts
+        if picture is not None:
+            sink.write(picture, pts)
+            continue
+        if frame.format.name != "yuv420p":
+            # E.g. a camera's full-range yuvj420p: to what the encoder takes.
+            frame = reformatter.reformat(frame, format="yuv420p", dst_color_range="MPEG",
+                                         threads=1)
+        if len(detections):
+            # The decoder may still read this picture as a reference: draw on a copy.
+            frame.make_writable()
+            draw_detections_yuv420(plane_view(frame, 0), plane_view(frame, 1),
+                                   plane_view(frame, 2), detections, bt709=sink.bt709)
+        sink.write(frame, pts)
+
+
+def report(clock, conveyor, inbox, writer, callback, stats):
+    """The detections file, the caller's callback and the counts, in frame order."""
+    while True:
+        item = conveyor.get(inbox, clock)
+        if item is END:
+            return
+        index, _, _, detections = item
+        if writer is not None:
+            writer.write(index, detections)
+        if callback is not None:
+            callback(index, detections)
+        stats.frames += 1
+        stats.boxes += len(detections)
+        if detections.track_id is not None:
+            stats.track_ids.update(detections.track_id.tolist())

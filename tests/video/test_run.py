@@ -1,0 +1,209 @@
+"""Tests for ``fastdet.video.run.process_video``: the pipelined run against a plain loop.
+
+The detections of the pipelined run must be exactly those of a plain loop
+over ``VideoPipeline``; Ctrl-C and SIGTERM (sent to a real ``fastdet run``
+process) must leave complete outputs, a second signal none.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import av
+import numpy as np
+import pytest
+from video_stubs import BlockDetector, bundled_model_path, moving_block
+
+from fastdet.detector.detector import Detector
+from fastdet.errors import InputError
+from fastdet.video.config import TrackConfig
+from fastdet.video.detection_files import DetectionWriter
+from fastdet.video.pipeline import VideoPipeline
+from fastdet.video.run import process_video
+from fastdet.video.sink import VideoSink
+from fastdet.video.source import VideoSource
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def detector():
+    detector = Detector(bundled_model_path(), threads=1)
+    return detector
+
+
+def leftovers(folder):
+    return sorted(p.name for p in folder.iterdir() if ".part" in p.name)
+
+
+def plain_loop(path, detector, track_config, out, start=0, end=None, first_output=0):
+    """The reference: frames one by one through VideoPipeline into a DetectionWriter."""
+    pipeline = VideoPipeline(detector, track_config)
+    with VideoSource(path, start, end) as video, DetectionWriter(out) as writer:
+        for index, frame in enumerate(video, start):
+            detections = pipeline.process(frame)
+            if index >= first_output:
+                writer.write(index, detections)
+    return out.read_text()
+
+
+@pytest.mark.parametrize("track", [{}, {"every": 5}, {"every": 5, "tracking": True}],
+                         ids=["every frame", "every 5", "every 5 + tracking"])
+def test_detections_equal_a_plain_loop(data_dir, detector, tmp_path, track):
+    video = data_dir / "test_video.mp4"
+    expected = plain_loop(video, detector, TrackConfig(**track), tmp_path / "plain.jsonl")
+    stats = process_video(video, tmp_path / "out.mp4",
+                          VideoPipeline(detector, TrackConfig(**track)),
+                          detections=tmp_path / "piped.jsonl")
+    assert (tmp_path / "piped.jsonl").read_text() == expected
+    assert stats.frames == 38 and stats.boxes > 0 and stats.interrupted is None
+    assert sum(1 for line in expected.splitlines() if '"box"' in line) > 30
+
+
+def test_a_range_with_warm_up_frames_equals_the_loop_from_their_start(data_dir, detector,
+                                                                      tmp_path):
+    video = data_dir / "test_video.mp4"
+    track = TrackConfig(every=3)
+    expected = plain_loop(video, detector, track, tmp_path / "plain.jsonl", start=6, end=20,
+                          first_output=10)
+    stats = process_video(video, None, VideoPipeline(detector, track),
+                          detections=tmp_path / "piped.jsonl", start=10, end=20, warmup=4)
+    assert (tmp_path / "piped.jsonl").read_text() == expected
+    assert [json.loads(line)["frame"] for line in expected.splitlines()] == list(range(10, 20))
+    assert stats.frames == 10
+
+
+def test_annotated_output_keeps_size_rate_and_timestamps(data_dir, detector, tmp_path):
+    out = tmp_path / "out.mp4"
+    process_video(data_dir / "test_video.mp4", out, VideoPipeline(detector), end=6)
+    with av.open(str(out)) as written, VideoSource(data_dir / "test_video.mp4", end=6) as video:
+        stream = written.streams.video[0]
+        assert (stream.codec_context.name, stream.codec_context.pix_fmt) == ("h264", "yuv420p")
+        assert stream.average_rate == 25 and stream.codec_context.colorspace == 1   # BT.709 kept
+        frames = [f.to_ndarray(format="bgr24") for f in written.decode(stream)]
+        originals = list(video)
+    assert len(frames) == 6
+    # The boxes are drawn: some pixels changed a lot, most not at all.
+    difference = np.abs(frames[0].astype(int) - originals[0]).max(axis=2)
+    assert (difference > 100).sum() > 500 and np.median(difference) < 4
+
+
+def test_callback_sees_every_frame_in_order(tmp_path):
+    frames, _ = moving_block(9)
+    path = tmp_path / "blocks.mp4"
+    with VideoSink(path, 10.0, (frames[0].shape[1], frames[0].shape[0])) as sink:
+        for frame in frames:
+            sink.write(frame)
+    seen = []
+    stats = process_video(path, None, VideoPipeline(BlockDetector()),
+                          callback=lambda index, detections: seen.append((index, len(detections))))
+    assert [index for index, _ in seen] == list(range(9)) and stats.frames == 9
+    assert all(count == 1 for _, count in seen)
+
+
+def test_an_error_in_a_stage_leaves_no_output(data_dir, detector, tmp_path):
+    def fail(index, detections):
+        if index == 4:
+            raise InputError("the callback refuses frame 4")
+
+    with pytest.raises(InputError, match="refuses frame 4"):
+        process_video(data_dir / "test_video.mp4", tmp_path / "out.mp4",
+                      VideoPipeline(detector), callback=fail,
+                      detections=tmp_path / "dets.jsonl")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_cut_input_keeps_the_frames_before_the_break(data_dir, detector, tmp_path):
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes((data_dir / "test_video.mp4").read_bytes()[:300_000])
+    dets = tmp_path / "dets.jsonl"
+    with pytest.raises(InputError, match=r"cut.mp4: .*; the outputs hold the (\d+) frames"):
+        process_video(cut, tmp_path / "out.mp4", VideoPipeline(detector), detections=dets)
+    lines = dets.read_text().splitlines()
+    assert 0 < len(lines) < 38 and leftovers(tmp_path) == []
+    with VideoSource(tmp_path / "out.mp4") as video:
+        assert sum(1 for _ in video.decoded_frames()) == len(lines)
+
+
+def test_realtime_drops_frames_when_processing_falls_behind(data_dir, tmp_path):
+    slow = lambda index, detections: time.sleep(0.2)  # noqa: E731 - 5 fps against 25
+    stats = process_video(data_dir / "test_video.mp4", None, VideoPipeline(BlockDetector()),
+                          detections=tmp_path / "d.jsonl", callback=slow, realtime=True)
+    assert stats.dropped > 0 and stats.frames + stats.dropped == 38
+    frames = [json.loads(line)["frame"] for line in (tmp_path / "d.jsonl").read_text().splitlines()]
+    assert frames == sorted(frames) and len(frames) == stats.frames and frames[0] == 0
+
+
+# -- signals, on a real process -----------------------------------------------------------
+#: ``fastdet run`` with each frame's processing slowed to 0.1 s, so that a run is still going,
+#: and still draining its queues after a first signal, when the test sends its signals.
+SLOW_RUN = """
+import sys, time
+from fastdet.video.pipeline import VideoPipeline
+process = VideoPipeline.process
+VideoPipeline.process = lambda self, frame: time.sleep(0.1) or process(self, frame)
+from fastdet.cli.app import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def run_and_signal(args, folder, signals, gap=0.3):
+    """Start a slowed ``fastdet run``, wait for its first detection line, send ``signals``."""
+    command = [sys.executable, "-c", SLOW_RUN, "run", *args, "--quiet"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, env=env, cwd=ROOT)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and process.poll() is None:
+        # The detections file is written line by line: wait for its first frame.
+        if any(p.stat().st_size > 0 for p in folder.iterdir() if p.suffix == ".jsonl"):
+            break
+        time.sleep(0.02)
+    time.sleep(0.3)
+    for signum in signals:
+        process.send_signal(signum)
+        time.sleep(gap)
+    out, err = process.communicate(timeout=120)
+    return process.returncode, out, err
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_completes_both_outputs(data_dir, tmp_path, signum, code):
+    out, dets = tmp_path / "out.mp4", tmp_path / "dets.jsonl"
+    returncode, stdout, stderr = run_and_signal(
+        [str(data_dir / "test_video.mp4"), "--out", str(out), "--detections", str(dets)],
+        tmp_path, [signum])
+    assert returncode == code, stderr
+    assert stdout.startswith("interrupted after ")
+    lines = dets.read_text().splitlines()
+    assert 0 < len(lines) < 38
+    with VideoSource(out) as video:
+        assert sum(1 for _ in video.decoded_frames()) == len(lines)
+    assert leftovers(tmp_path) == []
+
+
+def test_a_second_signal_aborts_and_leaves_nothing(data_dir, tmp_path):
+    returncode, stdout, stderr = run_and_signal(
+        [str(data_dir / "test_video.mp4"), "--out", str(tmp_path / "out.mp4"), "--detections",
+         str(tmp_path / "dets.jsonl")], tmp_path, [signal.SIGINT, signal.SIGINT])
+    assert returncode == 130, stderr
+    assert stdout == "" and stderr == "fastdet: interrupted\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("size", [(853, 480), (1281, 721)])
+def test_odd_sized_input_is_padded_through_the_pipeline(tmp_path, size):
+    from video_files import frame_number, write_clip
+
+    clip = write_clip(tmp_path / "odd.mp4", 5, fps=25.0, size=size)
+    process_video(clip, tmp_path / "out.mp4", VideoPipeline(BlockDetector()),
+                  detections=tmp_path / "d.jsonl")
+    with VideoSource(tmp_path / "out.mp4") as video:
+        assert video.size == (size[0] + size[0] % 2, size[1] + size[1] % 2)
+        assert [frame_number(f[:size[1], :size[0]]) for f in video] == list(range(5))

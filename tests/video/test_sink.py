@@ -1,0 +1,220 @@
+"""Tests for ``fastdet.video.sink``: H.264 that browsers play, odd sizes, timestamps, atomicity."""
+
+from __future__ import annotations
+
+import struct
+from fractions import Fraction
+
+import av
+import numpy as np
+import pytest
+
+from fastdet.errors import InputError
+from fastdet.video.sink import VideoSink, available_codecs, pad_to_even
+from fastdet.video.source import VideoSource
+from video_files import SIZE, frame_number, numbered_frame, write_clip
+
+
+def leftovers(folder):
+    return sorted(p.name for p in folder.iterdir() if ".part" in p.name)
+
+
+def top_level_boxes(path):
+    """The ISO-BMFF boxes at the top of an MP4 file, in order."""
+    data, boxes, offset = path.read_bytes(), [], 0
+    while offset + 8 <= len(data):
+        size, kind = struct.unpack(">I4s", data[offset:offset + 8])
+        if size == 1:
+            size = struct.unpack(">Q", data[offset + 8:offset + 16])[0]
+        boxes.append(kind.decode("latin-1"))
+        offset += size if size else len(data)
+    return boxes
+
+
+def read_back(path):
+    """``(codec, pixel format, size, frame numbers, times in s)`` of a written video."""
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        frames = list(container.decode(stream))
+        context = stream.codec_context
+        return (context.name, context.pix_fmt, (context.width, context.height),
+                [frame_number(f.to_ndarray(format="bgr24")[:SIZE[1], :SIZE[0]]) for f in frames],
+                [float(f.pts * stream.time_base) for f in frames])
+
+
+def test_default_output_is_h264_yuv420p_with_the_index_first(tmp_path):
+    path = tmp_path / "out.mp4"
+    with VideoSink(path, 25.0, SIZE) as sink:
+        for i in range(5):
+            sink.write(numbered_frame(i))
+        assert not path.exists()          # only the temporary file so far
+        assert len(leftovers(tmp_path)) == 1
+    codec, pix_fmt, size, numbers, times = read_back(path)
+    assert (codec, pix_fmt, size) == ("h264", "yuv420p", SIZE)
+    assert numbers == list(range(5)) and times == pytest.approx([0, 0.04, 0.08, 0.12, 0.16])
+    boxes = top_level_boxes(path)
+    assert boxes[0] == "ftyp" and boxes.index("moov") < boxes.index("mdat")   # +faststart
+    assert leftovers(tmp_path) == []
+    assert path.stat().st_mode & 0o044  # not left owner-only like a temp file
+
+
+@pytest.mark.parametrize("width, height", [(853, 480), (1281, 721), (64, 47)])
+def test_odd_sizes_are_padded_never_rescaled(tmp_path, width, height):
+    rng = np.random.default_rng(width)
+    # Smooth content so compression keeps it: a gradient plus a bright last column and row.
+    frame = np.zeros((height, width, 3), np.uint8)
+    frame[:] = np.linspace(30, 220, width, dtype=np.uint8)[None, :, None]
+    frame[:, -1] = (250, 40, 40)
+    frame[-1] = (40, 250, 40)
+    frame[: height // 2, : width // 2, 2] = rng.integers(90, 110)
+    path = tmp_path / "odd.mp4"
+    with VideoSink(path, 25.0, (width, height)) as sink:
+        for _ in range(3):
+            sink.write(frame)
+    with VideoSource(path) as video:
+        assert video.size == (width + width % 2, height + height % 2)
+        decoded = next(iter(video)).astype(int)
+    # The picture sits unscaled in the top-left corner ...
+    assert np.abs(decoded[:height, :width] - frame).mean() < 3
+    # ... and the padding repeats the last column and row.
+    if width % 2:
+        assert np.abs(decoded[:height, -1] - decoded[:height, -2]).mean() < 6
+    if height % 2:
+        assert np.abs(decoded[-1, :width] - decoded[-2, :width]).mean() < 6
+
+
+def test_pad_to_even_repeats_the_edges():
+    image = np.arange(15, dtype=np.uint8).reshape(3, 5)
+    padded = pad_to_even(image)
+    assert padded.shape == (4, 6)
+    assert np.array_equal(padded[:3, :5], image)
+    assert np.array_equal(padded[:3, 5], image[:, 4]) and np.array_equal(padded[3], padded[2])
+    even = np.zeros((4, 6, 3), np.uint8)
+    assert pad_to_even(even) is even
+
+
+def test_decoded_frames_pass_through_with_their_timestamps_2997(tmp_path):
+    source_path = write_clip(tmp_path / "ntsc.mp4", 8, fps=30000 / 1001)
+    out = tmp_path / "out.mp4"
+    with VideoSource(source_path) as video:
+        with VideoSink(out, video.rate, video.size, time_base=video.time_base,
+                       colour=video.colour) as sink:
+            for frame in video.decoded_frames():
+                sink.write(frame, frame.pts)
+    with av.open(str(out)) as container:
+        assert container.streams.video[0].average_rate == Fraction(30000, 1001)
+    _, _, _, numbers, times = read_back(out)
+    assert numbers == list(range(8))
+    assert times == pytest.approx([i * 1001 / 30000 for i in range(8)], abs=1e-4)
+
+
+def test_variable_frame_rate_is_kept(tmp_path):
+    times = [0.0, 0.04, 0.08, 0.1, 0.2, 0.233, 0.266, 0.4, 0.41, 0.5]
+    source_path = write_clip(tmp_path / "vfr.mp4", len(times), times=times)
+    out = tmp_path / "out.mp4"
+    with VideoSource(source_path) as video:
+        with VideoSink(out, video.rate, video.size, time_base=video.time_base) as sink:
+            for frame in video.decoded_frames():
+                sink.write(frame, frame.pts)
+    _, _, _, numbers, written = read_back(out)
+    assert numbers == list(range(len(times)))
+    assert written == pytest.approx(times, abs=1e-3)
+
+
+def test_timestamps_always_increase(tmp_path):
+    path = tmp_path / "out.mp4"
+    with VideoSink(path, 10.0, SIZE) as sink:
+        for i, pts in enumerate([0, 1, 1, 0, 5, None]):
+            sink.write(numbered_frame(i), pts)
+    _, _, _, numbers, times = read_back(path)
+    assert numbers == list(range(6))
+    assert np.all(np.diff(times) > 0)
+    assert times == pytest.approx([0.0, 0.1, 0.2, 0.3, 0.5, 0.6])
+
+
+@pytest.mark.parametrize("codec", available_codecs())
+def test_every_codec_the_wheel_has_writes_a_readable_video(tmp_path, codec):
+    path = tmp_path / "out.mkv"
+    size = (128, 96)   # large enough for every encoder's minimum
+    with VideoSink(path, 25.0, size, codec=codec) as sink:
+        for i in range(6):
+            sink.write(numbered_frame(i, size))
+    with VideoSource(path) as video:
+        assert video.size == size
+        assert [frame_number(f) for f in video] == list(range(6))
+
+
+def test_h264_is_available():
+    assert {"h264", "mp4v"} <= set(available_codecs())
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"codec": "theora"}, "unknown codec 'theora'"),
+    ({"codec": "mp4v", "preset": "fast"}, "--preset does not apply to mp4v"),
+    ({"codec": "mp4v", "crf": 40}, "must be 2-31"),
+    ({"preset": "warp-speed"}, "cannot write a h264 video"),
+])
+def test_bad_encoder_settings_are_one_line_errors(tmp_path, options, message):
+    with pytest.raises(InputError, match=message):
+        VideoSink(tmp_path / "out.mp4", 25.0, SIZE, **options)
+    assert leftovers(tmp_path) == [] and not (tmp_path / "out.mp4").exists()
+
+
+def test_discards_on_error_and_keeps_the_old_file(tmp_path):
+    path = tmp_path / "out.mp4"
+    path.write_bytes(b"previous")
+    with pytest.raises(RuntimeError):
+        with VideoSink(path, 25.0, SIZE) as sink:
+            sink.write(numbered_frame(0))
+            raise RuntimeError("boom")
+    assert path.read_bytes() == b"previous"
+    assert leftovers(tmp_path) == []
+
+
+def test_keeps_frames_done_before_ctrl_c(tmp_path):
+    path = tmp_path / "out.mp4"
+    with pytest.raises(KeyboardInterrupt):
+        with VideoSink(path, 25.0, SIZE) as sink:
+            for i in range(3):
+                sink.write(numbered_frame(i))
+            raise KeyboardInterrupt
+    assert read_back(path)[3] == [0, 1, 2]
+    assert leftovers(tmp_path) == []
+
+
+def test_encoder_failure_is_reported_and_leaves_nothing(tmp_path, monkeypatch):
+    path = tmp_path / "broken.mp4"
+    sink = VideoSink(path, 25.0, SIZE)
+
+    def full_disk(*args):
+        raise av.error.OSError(28, "No space left on device")
+
+    monkeypatch.setattr(sink, "_container", type("Broken", (), {"mux": staticmethod(full_disk),
+                                                                "close": lambda self: None})())
+    with pytest.raises(InputError, match="cannot write a video to .*broken.mp4: No space left"):
+        with sink:
+            sink.write(numbered_frame(0))
+    assert not path.exists() and leftovers(tmp_path) == []
+
+
+def test_sink_without_frames_leaves_nothing(tmp_path):
+    path = tmp_path / "out.mp4"
+    with VideoSink(path, 25.0, SIZE):
+        pass
+    assert not path.exists() and leftovers(tmp_path) == []
+
+
+def test_rejects_frames_of_another_size(tmp_path):
+    with VideoSink(tmp_path / "out.mp4", 25.0, SIZE) as sink:
+        with pytest.raises(InputError, match="does not fit a 64x48 video"):
+            sink.write(np.zeros((10, 10, 3), np.uint8))
+        sink.write(numbered_frame(0))
+
+
+@pytest.mark.parametrize("name, message", [("missing/out.mp4", "cannot write .*out.mp4"),
+                                           ("", "it is a directory"),
+                                           ("out.xyz", "unsupported suffix")])
+def test_unwritable_destination(tmp_path, name, message):
+    with pytest.raises(InputError, match=message):
+        VideoSink(tmp_path / name, 25.0, SIZE)
+    assert leftovers(tmp_path) == []

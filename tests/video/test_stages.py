@@ -1,0 +1,129 @@
+"""Tests for ``fastdet.video.stages``: the thread plan and the conveyor of stage threads."""
+
+from __future__ import annotations
+
+import itertools
+import queue
+import time
+
+import pytest
+
+from fastdet.video.stages import _put_newest
+from fastdet.video.stages import END, Conveyor, plan_threads
+
+
+# -- the thread plan -------------------------------------------------------------------
+@pytest.mark.parametrize("cores, video, fraction, expected", [
+    (2, True, 1.0, (1, 1, 1)),       # three parts, two cores: one each (the minimum)
+    (2, False, 1.0, (1, 2, 0)),      # the detector bounds the run: it may use idle time
+    (2, False, 0.2, (2, 1, 0)),      # --every 5: decoding is most of the work
+    (1, True, 1.0, (1, 1, 1)),
+    (4, False, 1.0, (2, 3, 0)),
+    (8, True, 1.0, (2, 3, 3)),
+])
+def test_plan_shares_the_cores_by_load(cores, video, fraction, expected):
+    plan = plan_threads(cores, video, fraction)
+    assert (plan.decoder, plan.detector, plan.encoder) == expected
+    # The heaviest part may get a thread more than its share, never more.
+    assert plan.decoder + plan.detector + plan.encoder <= max(cores + 1, 2 + video)
+    assert f"{cores} cores" in plan.describe()
+
+
+# -- the conveyor ------------------------------------------------------------------------
+def chain(conveyor, items, work=None):
+    """source -> middle (applies ``work``) -> sink; returns the list the sink fills."""
+    first, second, received = conveyor.queue(2), conveyor.queue(2), []
+
+    def source(clock):
+        for item in items:
+            if conveyor.stopping.is_set():
+                break
+            conveyor.put(first, item, clock)
+        conveyor.put(first, END, clock)
+
+    def middle(clock):
+        while (item := conveyor.get(first, clock)) is not END:
+            conveyor.put(second, work(item) if work else item, clock)
+        conveyor.put(second, END, clock)
+
+    def sink(clock):
+        while (item := conveyor.get(second, clock)) is not END:
+            received.append(item)
+
+    conveyor.add("sink", sink, inbox=second)
+    conveyor.add("source", source)
+    conveyor.add("middle", middle, inbox=first)
+    return received
+
+
+def test_items_arrive_in_order_through_bounded_queues():
+    conveyor = Conveyor()
+    received = chain(conveyor, range(500))
+    conveyor.run()
+    assert received == list(range(500))
+    assert set(conveyor.times.stages) == {"source", "middle", "sink"}
+    assert conveyor.times.bound() in conveyor.times.stages
+
+
+def test_an_error_in_any_stage_stops_every_stage():
+    def work(item):
+        if item == 50:
+            raise ValueError("stage broke")
+        return item
+
+    conveyor = Conveyor()
+    received = chain(conveyor, itertools.count(), work)   # an endless source
+    started = time.monotonic()
+    with pytest.raises(ValueError, match="stage broke"):
+        conveyor.run()
+    assert time.monotonic() - started < 10
+    assert received == list(range(len(received))) and len(received) <= 50
+
+
+def test_stop_lets_what_was_read_reach_the_end():
+    conveyor = Conveyor()
+    produced = []
+
+    def counted():
+        for item in itertools.count():
+            produced.append(item)
+            yield item
+
+    received = chain(conveyor, counted())
+    conveyor.run(on_tick=lambda: len(received) > 20 and conveyor.stop())
+    assert len(received) > 20
+    assert received == produced[:len(received)]
+    assert len(produced) - len(received) <= 1   # at most the item in the source's hands
+
+
+def test_abort_stops_at_once():
+    conveyor = Conveyor()
+    received = chain(conveyor, itertools.count(), work=lambda item: time.sleep(0.001) or item)
+    started = time.monotonic()
+    conveyor.run(on_tick=lambda: len(received) > 5 and conveyor.abort())
+    assert conveyor.aborted and time.monotonic() - started < 10
+
+
+def test_a_stage_that_stops_reading_does_not_block_the_one_before():
+    conveyor = Conveyor()
+    inbox = conveyor.queue(1)
+
+    def source(clock):
+        for item in range(100):
+            conveyor.put(inbox, item, clock)
+
+    def quitter(clock):
+        conveyor.get(inbox, clock)
+
+    conveyor.add("quitter", quitter, inbox=inbox)
+    conveyor.add("source", source)
+    started = time.monotonic()
+    conveyor.run()
+    assert time.monotonic() - started < 10
+
+
+def test_realtime_keeps_the_newest_frames():
+    box = queue.Queue(maxsize=2)
+    dropped = sum(_put_newest(box, item) for item in range(5))
+    assert dropped == 3
+    assert [box.get_nowait(), box.get_nowait()] == [3, 4]
