@@ -12,7 +12,6 @@ far (exit status 130 or 143); a second one aborts at once, leaving no output.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 from urllib.parse import urlparse
@@ -72,8 +71,6 @@ def add_run_parser(subparsers):
     run.add_argument("--timeout", type=float, default=10.0, metavar="S",
                      help="seconds a stream or camera may stay silent (default 10)")
     run.add_argument("--quiet", "-q", action="store_true", help="no progress bar or notices")
-    run.add_argument("--verbose", "-v", action="store_true", default=argparse.SUPPRESS,
-                     help="print the thread plan")
     run.add_argument("--debug-view", action="store_true",
                      help="draw the live heat map and per-frame timings into the output video")
     run.set_defaults(handler=cmd_run)
