@@ -18,12 +18,13 @@ import numba
 import numpy as np
 
 from ..errors import InputError
+from ..kernels.warmup import warm
 from .boxes import BoxFinder
 from .config import DetectorConfig
 from .frames import as_bgr_frame
 from .model import Model, load_model
 from .plan import plan_scales
-from .scoring import STAGES, Hits, ScaleScorer
+from .scoring import STAGES, Hits, ScaleScorer, kernel_families, scale_bands
 
 
 class Detector:
@@ -39,11 +40,18 @@ class Detector:
     threads : int, optional
         Threads per frame.  ``None`` keeps Numba's setting
         (``NUMBA_NUM_THREADS``, all cores by default); 1 runs everything on
-        the calling thread.  With more, the search scales of a frame are
-        scored concurrently by a pool of that many threads (the kernels
-        release the GIL), each scale on one thread: a scale's kernels are
-        too short to split well.  OpenCV, which converts the frame's colours,
-        is set to the same count so the two do not oversubscribe the cores.
+        the calling thread.  With more, the calling thread and a pool share
+        each frame (the kernels release the GIL): each converts a chunk of
+        the searched band's rows, then they take the frame's bands of
+        window rows (:func:`~fastdet.detector.scoring.scale_bands`: whole
+        scales, the largest cut in two) costliest first, as each finishes
+        one.  OpenCV is set to the same count so the two do not
+        oversubscribe the cores.
+    preload : bool
+        Load the kernels a detection needs in a background thread from
+        now on (compiling them on first use, about half of them in a
+        second process; see :func:`fastdet.kernels.warmup.warm`); the first
+        detection waits for it.  False: each kernel loads at its first call.
 
     Attributes
     ----------
@@ -54,6 +62,10 @@ class Detector:
     timings : dict
         Seconds spent per stage (see ``STAGES``) in the last call; with
         several threads, the scales' stage times are summed over threads.
+    thread_busy : list of float
+        Seconds each thread worked on the last frame's conversion and
+        scoring (the calling thread first); the rest of ``timings["total"]``
+        it waited, or (the calling thread) found boxes.
 
     Notes
     -----
@@ -68,7 +80,7 @@ class Detector:
     >>> detections.xyxy, detections.score          # doctest: +SKIP
     """
 
-    def __init__(self, model=None, config=None, threads=None):
+    def __init__(self, model=None, config=None, threads=None, preload=True):
         if not isinstance(model, Model):
             model = load_model(model)
         self.model = model
@@ -80,11 +92,19 @@ class Detector:
             cv2.setNumThreads(threads)
         self.threads = numba.get_num_threads() if threads is None else threads
         self._pool = None
-        self._timings_lock = threading.Lock()
         self.scorer = ScaleScorer(model)
         self.box_finder = BoxFinder(config or DetectorConfig())
         self._plans = {}
+        self._bands = {}
         self.timings = dict.fromkeys(STAGES, 0.0)
+        self.thread_busy = [0.0] * self.threads
+        self._loader = None
+        if preload:
+            # Load (or compile) the kernels while the caller reads its first
+            # frame; the first detection waits for it (see _kernels_loaded).
+            self._loader = threading.Thread(target=warm, args=(kernel_families(model.options),),
+                                            name="fastdet-kernels", daemon=True)
+            self._loader.start()
 
     @property
     def config(self):
@@ -95,16 +115,24 @@ class Detector:
     def config(self, config):
         self.box_finder.config = config
         self._plans = {}
+        self._bands = {}
 
     def __del__(self):
         pool = getattr(self, "_pool", None)
         if pool is not None:
             pool.shutdown(wait=False)
 
-    def _scale_pool(self):
-        """The thread pool that scores scales concurrently (threads > 1)."""
+    def _kernels_loaded(self):
+        """Wait for the kernel loading started by ``__init__`` (once)."""
+        loader = self._loader
+        if loader is not None:
+            loader.join()
+            self._loader = None
+
+    def _worker_pool(self):
+        """The threads that score bands beside the calling thread (threads > 1)."""
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=self.threads,
+            self._pool = ThreadPoolExecutor(max_workers=self.threads - 1,
                                             thread_name_prefix="fastdet-scale")
         return self._pool
 
@@ -115,6 +143,14 @@ class Detector:
             plans = self._plans[frame_size] = plan_scales(self.config, self.model.options,
                                                           frame_size)
         return plans
+
+    def bands(self, frame_size):
+        """The frame's scoring tasks for this detector's threads (see :func:`.scoring.scale_bands`)."""
+        bands = self._bands.get(frame_size)
+        if bands is None:
+            bands = self._bands[frame_size] = scale_bands(
+                self.plans(frame_size), self.model.options.pixels_per_cell, self.threads)
+        return bands
 
     # -- stage 1: windows ---------------------------------------------------
     def prepare(self, frame):
@@ -154,20 +190,25 @@ class Detector:
         Hits
         """
         frame = as_bgr_frame(frame)
+        self._kernels_loaded()
         for stage in STAGES:
             self.timings[stage] = 0.0
+        size = (frame.shape[1], frame.shape[0])
+        plans = self.plans(size)
+        bands = self.bands(size)
+        grids = [np.full(plan.grid, self.model.bias, dtype=np.float32) for plan in plans]
+        prepared = self.scorer.frame_buffers(plans)
+        workers = min(self.threads, max(len(bands), 1))
+        if workers > 1:
+            self._score_concurrently(frame, prepared, plans, bands, grids, workers)
+        else:
+            timings = dict.fromkeys(STAGES, 0.0)
+            self.thread_busy = [self._score_share(frame, prepared, plans, iter(bands), grids,
+                                                  timings, (0, 1))] + [0.0] * (self.threads - 1)
+            self._add_timings(timings)
         threshold = self.config.search.decision_threshold
         boxes, scores, scales = [], [], []
         scored = 0
-        t0 = time.perf_counter()
-        prepared = self.prepare(frame)
-        self.timings["resize_convert"] += time.perf_counter() - t0
-        plans = self.plans((frame.shape[1], frame.shape[0]))
-        if self.threads > 1 and len(plans) > 1:
-            grids = list(self._scale_pool().map(
-                lambda plan: self._score_scale_timed(prepared, plan), plans))
-        else:
-            grids = [self.score_scale(prepared, plan) for plan in plans]
         for index, (plan, grid) in enumerate(zip(plans, grids)):
             grid = grid.ravel()
             scored += grid.size
@@ -181,14 +222,56 @@ class Detector:
                         np.zeros(0, np.int64), scored)
         return Hits(np.concatenate(boxes), np.concatenate(scores), np.concatenate(scales), scored)
 
-    def _score_scale_timed(self, prepared, plan):
-        """:meth:`score_scale` on a pool thread, its stage times added afterwards."""
-        timings = dict.fromkeys(STAGES, 0.0)
-        scores = self.score_scale(prepared, plan, timings)
-        with self._timings_lock:
-            for stage, seconds in timings.items():
-                self.timings[stage] += seconds
-        return scores
+    def _score_share(self, frame, prepared, plans, tasks, grids, timings, part, converted=None):
+        """One thread's share of a frame: its part of the colour conversion, then
+        bands taken from ``tasks`` until none is left.  Returns the seconds it worked.
+
+        ``part``: ``(k, n)``, this thread converts the k-th of n row chunks;
+        ``converted``: a barrier all chunks pass before any band is scored.
+        """
+        try:
+            start = time.perf_counter()
+            if prepared.converted is not None:
+                rows = prepared.converted.shape[0]
+                k, n = part
+                self.scorer.convert_rows(frame, prepared, k * rows // n, (k + 1) * rows // n)
+            busy = time.perf_counter() - start
+            timings["resize_convert"] += busy
+            if converted is not None:
+                converted.wait()
+            # Bands are taken in order, costliest first, by whichever thread is free.
+            for band in tasks:
+                begin = time.perf_counter()
+                self.scorer.score_band(prepared, plans[band.index], band.first, band.stop,
+                                       grids[band.index], timings, band.slot)
+                busy += time.perf_counter() - begin
+            return busy
+        except BaseException:
+            if converted is not None:
+                converted.abort()  # the other threads stop waiting for this one
+            raise
+
+    def _score_concurrently(self, frame, prepared, plans, bands, grids, workers):
+        """Score the bands of a frame on ``workers`` threads, the calling one included."""
+        tasks = iter(bands)  # next() on a list iterator is atomic under the GIL
+        converted = threading.Barrier(workers)
+        shares = [dict.fromkeys(STAGES, 0.0) for _ in range(workers)]
+        futures = [self._worker_pool().submit(self._score_share, frame, prepared, plans, tasks,
+                                              grids, shares[k], (k, workers), converted)
+                   for k in range(1, workers)]
+        try:
+            mine = self._score_share(frame, prepared, plans, tasks, grids, shares[0],
+                                     (0, workers), converted)
+        except threading.BrokenBarrierError:
+            mine = 0.0  # a worker failed: future.result() raises its error
+        busy = [mine] + [future.result() for future in futures]
+        self.thread_busy = busy + [0.0] * (self.threads - workers)
+        for timings in shares:
+            self._add_timings(timings)
+
+    def _add_timings(self, timings):
+        for stage, seconds in timings.items():
+            self.timings[stage] += seconds
 
     # -- stage 2: heat and boxes ----------------------------------------------
     def heat_region(self, hits, frame_size):

@@ -373,7 +373,7 @@ def _layout(shape, phase_step=None, cells_x=None):
 
 
 def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, parallel=False, out=None,
-                    phase_step=None, phase_pad=0):
+                    phase_step=None, phase_pad=0, rows=None):
     """Per-cell histograms of unsigned gradient orientation.
 
     Parameters
@@ -401,6 +401,10 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
         instead of ``(Hc, Wc, C, nbins)``.
     phase_pad : int
         Zero positions after the last phase (phase layout only).
+    rows : tuple of int, optional
+        ``(first, stop)``: fill only these cell rows of ``out`` (uint8
+        images in the phase layout; the other rows are left as they are).
+        Threads compute bands of one image this way.
 
     Returns
     -------
@@ -433,17 +437,18 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
             _output(out, phase_shape)[...] = phase
             return out
         out = _output(out, phase_shape)
-        # Positions no cell maps to (short phases, padding) stay zero.
-        out[...] = 0.0
-        if out.size:
-            _u8_cells(image, ppc_y, ppc_x, nbins, parallel, cells_y, cells_x,
+        first, stop = (0, cells_y) if rows is None else (max(0, int(rows[0])),
+                                                         min(cells_y, int(rows[1])))
+        if out.size and first < stop:
+            _zero_unmapped(out[first:stop], cells_x, phase_step)
+            _u8_cells(image, ppc_y, ppc_x, nbins, parallel, first, stop, cells_x,
                       _layout(phase_shape, phase_step, cells_x), out.reshape(-1))
         return out
     out = _output(out, shape)
     if out.size == 0:
         return out
     if image.dtype == np.uint8 and not merge_channels:
-        _u8_cells(image, ppc_y, ppc_x, nbins, parallel, cells_y, cells_x, _layout(shape),
+        _u8_cells(image, ppc_y, ppc_x, nbins, parallel, 0, cells_y, cells_x, _layout(shape),
                   out.reshape(-1))
         return out
     cos_sin, bounds = _tables(nbins)
@@ -456,21 +461,33 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
     return out
 
 
-def _u8_cells(image, ppc_y, ppc_x, nbins, parallel, cells_y, cells_x, layout, out_flat):
+def _zero_unmapped(phase, cells_x, step):
+    """Zero the positions of phase-layout cells that no cell column maps to:
+    the end of each phase shorter than the longest, and the padding.  Every
+    other position is written by the cell kernels."""
+    per_phase = -(-cells_x // step)
+    for q in range(min(step, cells_x)):
+        filled = -(-(cells_x - q) // step)
+        phase[..., q * per_phase + filled:(q + 1) * per_phase] = 0.0
+    phase[..., min(step, cells_x) * per_phase:] = 0.0
+
+
+def _u8_cells(image, ppc_y, ppc_x, nbins, parallel, first, stop, cells_x, layout, out_flat):
+    """Cell rows ``first`` .. ``stop - 1`` of a uint8 image into ``out_flat``."""
     bin_lut = _bin_lut(nbins)
     fast = ((ppc_y, ppc_x, nbins) == _FAST_PPC + (_FAST_NBINS,)
             and image.shape[2] in _FAST_CHANNELS and _fast_rule_ok())
-    bands = min(numba.get_num_threads(), cells_y) if parallel else 1
+    bands = min(numba.get_num_threads(), stop - first) if parallel and first == 0 else 1
     if fast and bands > 1:
-        _cell_histograms_u8_fast_parallel(image, bin_lut, bands, cells_y, cells_x, layout,
+        _cell_histograms_u8_fast_parallel(image, bin_lut, bands, stop, cells_x, layout,
                                           out_flat)
     elif fast:
-        _cell_rows_u8_fast(image, 0, cells_y, bin_lut, cells_x, layout, out_flat)
+        _cell_rows_u8_fast(image, first, stop, bin_lut, cells_x, layout, out_flat)
     elif bands > 1:
-        _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, cells_y,
+        _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, stop,
                                      cells_x, layout, out_flat)
     else:
-        _cell_rows_u8(image, 0, cells_y, ppc_y, ppc_x, nbins, bin_lut, cells_x, layout,
+        _cell_rows_u8(image, first, stop, ppc_y, ppc_x, nbins, bin_lut, cells_x, layout,
                       out_flat)
 
 

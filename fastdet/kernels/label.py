@@ -69,7 +69,7 @@ __all__ = [
 ]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _find_root(parent, label):
     # Path halving keeps trees shallow without a second pass or recursion.
     while parent[label] != label:
@@ -78,7 +78,7 @@ def _find_root(parent, label):
     return label
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _union(parent, label_a, label_b):
     root_a = _find_root(parent, label_a)
     root_b = _find_root(parent, label_b)
@@ -120,7 +120,7 @@ def label_components_kernel(mask, eight_connected):
     return labels, count
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _parent_size(height, width):
     return height * ((width + 1) // 2) + 1
 
@@ -256,7 +256,7 @@ def label_components(mask, connectivity):
     return labels, int(count)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _sentinel_boxes(count, width, height):
     """Boxes with inverted bounds, so the first included pixel sets every bound."""
     boxes = np.empty((count, 4), dtype=np.int32)
@@ -267,7 +267,7 @@ def _sentinel_boxes(count, width, height):
     return boxes
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _include(boxes, row, x, y):
     """Grow box ``row`` to contain pixel (x, y)."""
     if x < boxes[row, 0]:
@@ -280,7 +280,7 @@ def _include(boxes, row, x, y):
         boxes[row, 3] = y + 1
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _zero_unused(boxes):
     """Boxes that never included a pixel become [0, 0, 0, 0]."""
     for row in range(boxes.shape[0]):
@@ -460,7 +460,7 @@ def _bits(values):
     raise NotImplementedError("only callable from jitted code")
 
 
-@overload(_bits, inline="always")
+@overload(_bits)
 def _bits_overload(values):
     if values.dtype == types.float32:
         return lambda values: values.view(np.uint32)
@@ -575,7 +575,7 @@ def _splits(values, mask, row_units, col_units, levels, min_width, min_height,
                             eight_connected).shape[0] >= 2
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _samples(starts, first, last, index0, step):
     """Which cells the sampled units ``first, first + step, ... < last`` fall in.
 

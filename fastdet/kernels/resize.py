@@ -554,7 +554,7 @@ def _halve(src, channels, out):
             row[i] = np.uint8((total + 2) >> 2)
 
 
-def resize_linear(image, size, out=None):
+def resize_linear(image, size, out=None, rows=None):
     """Resize a uint8 image to ``size`` exactly as ``cv2.resize(..., INTER_LINEAR)``.
 
     Parameters
@@ -565,6 +565,10 @@ def resize_linear(image, size, out=None):
     size : tuple of int
         ``(width, height)`` of the result, as in OpenCV.
     out : ndarray of uint8, shape (height, width, C), C-contiguous, optional
+    rows : tuple of int, optional
+        ``(first, stop)``: compute only these rows of the result (the others
+        of ``out`` are left as they are), each exactly as in the whole
+        result.  Threads resize bands of one image this way.
 
     Returns
     -------
@@ -586,18 +590,23 @@ def resize_linear(image, size, out=None):
     elif (not isinstance(out, np.ndarray) or out.shape != shape or out.dtype != np.uint8
           or not out.flags.c_contiguous or not out.flags.writeable):
         raise ValueError(f"out must be a writeable C-contiguous uint8 array of shape {shape}")
+    first, stop = (0, height) if rows is None else (max(0, int(rows[0])),
+                                                     min(height, int(rows[1])))
+    if first >= stop:
+        return out
     if (source_h, source_w) == (height, width):
-        out[...] = image
+        out[first:stop] = image[first:stop]
         return out
     # Rows of a column-sliced region stay contiguous: a (H, W * C) view.
-    rows = image.reshape(source_h, source_w * channels)
-    if rows.strides[1] != 1:
-        rows = np.ascontiguousarray(rows)
+    source = image.reshape(source_h, source_w * channels)
+    if source.strides[1] != 1:
+        source = np.ascontiguousarray(source)
+    dest = out.reshape(height, width * channels)[first:stop]
     if (source_h, source_w) == (2 * height, 2 * width):
-        _halve(rows, channels, out.reshape(height, width * channels))
+        _halve(source[2 * first:2 * stop], channels, dest)
         return out
     x_tables = column_tables(source_w, width, channels)
-    y_tables = linear_tables(source_h, height, False)
+    y_tables = [table[first:stop] for table in linear_tables(source_h, height, False)]
     path = 0 if HAVE_AVX512BW else 1 if HAVE_AVX2 else 2 if HAVE_SSSE3 else 3
-    _resize(path, rows, *x_tables, *y_tables, out.reshape(height, width * channels))
+    _resize(path, source, *x_tables, *y_tables, dest)
     return out

@@ -173,7 +173,7 @@ def test_full_width_regions_at_scale_one_are_scored_in_place(random_model):
     assert np.shares_memory(detector.scorer.scaled_region(region, plan, 3), prepared.converted)
     in_place = detector.score_scale(prepared, plan)
     copied = Detector(random_model, threads=1)
-    copied.scorer.scaled_region = lambda region, plan, channels: np.array(region)
+    copied.scorer.scaled_region = lambda region, plan, channels, *band: np.array(region)
     np.testing.assert_array_equal(copied.score_scale(prepared, plan), in_place)
 
 
