@@ -38,6 +38,9 @@ class PipelineResult:
     windows_per_frame : float
     stages : dict
         fastdet only: mean milliseconds per stage (``STAGES``) and ``total``.
+    thread_busy : list of float
+        fastdet only: mean milliseconds each thread worked per frame (the
+        calling thread first; see ``Detector.thread_busy``).
     """
 
     name: str
@@ -45,6 +48,7 @@ class PipelineResult:
     frame_indices: list
     windows_per_frame: float
     stages: dict = field(default_factory=dict)
+    thread_busy: list = field(default_factory=list)
 
     @property
     def median_ms(self):
@@ -127,6 +131,7 @@ def time_fastdet(detector, frames, repeat=3, name="fastdet"):
     detector(frames[0])
     per_frame = []
     stage_totals = dict.fromkeys(STAGES, 0.0)
+    busy_totals = np.zeros(len(detector.thread_busy))
     windows = 0
     for frame in frames:
         samples = []
@@ -136,12 +141,13 @@ def time_fastdet(detector, frames, repeat=3, name="fastdet"):
             samples.append(time.perf_counter() - start)
             for stage in STAGES:
                 stage_totals[stage] += detector.timings[stage]
+            busy_totals += detector.thread_busy
         per_frame.append(statistics.median(samples))
         windows += detector.last_windows_scored
     runs = len(frames) * repeat
     stages = {stage: total / runs * 1e3 for stage, total in stage_totals.items()}
     return PipelineResult(name, per_frame, list(range(len(frames))), windows / len(frames),
-                          stages)
+                          stages, list(busy_totals / runs * 1e3))
 
 
 def fastdet_name(threads):

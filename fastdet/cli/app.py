@@ -19,6 +19,7 @@ from .run import add_run_parser
 from .train import add_train_parser
 from .tune import add_tune_parser
 from .viz import add_viz_parser
+from .warmup import add_warmup_parser
 
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -30,7 +31,8 @@ def build_parser():
         prog="fastdet", description="Fast classical vehicle detection (HOG + linear SVM).")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add_verb in (add_detect_parser, add_eval_parser, add_train_parser, add_mine_parser,
-                     add_tune_parser, add_run_parser, add_viz_parser, add_bench_parser):
+                     add_tune_parser, add_run_parser, add_viz_parser, add_bench_parser,
+                     add_warmup_parser):
         add_verb(sub)
     return parser
 

@@ -27,11 +27,11 @@ import time
 
 import numpy as np
 
-#: What one 1280x720 frame's families cost to compile on the development
-#: machine (seconds, empty cache, quiet machine); :func:`split_families`
+#: Seconds each family took to compile on the development machine (empty
+#: cache, one process, Numba's own helpers included); :func:`split_families`
 #: balances two processes with these weights.
-COMPILE_WEIGHTS = {"label": 4.5, "colour": 2.4, "score": 2.0, "resize": 1.6, "heat": 1.3,
-                   "hog": 1.0, "convert": 0.4, "track": 1.5, "hog_api": 1.0}
+COMPILE_WEIGHTS = {"label": 5.8, "colour": 3.0, "score": 2.6, "resize": 2.5, "heat": 1.5,
+                   "hog": 1.1, "convert": 0.5, "track": 1.2, "hog_api": 0.8}
 
 
 def _frame_band(height, width):
@@ -135,7 +135,7 @@ _PROBES = {"convert": ("convert", "_bgr_to_hls"), "resize": ("resize", "_resize"
            "hog": ("hog", "_cell_rows_u8_fast"), "score": ("score", "_add_hog_scores_phase"),
            "colour": ("colour", "_colour_maps"), "heat": ("heat", "box_heat_region"),
            "label": ("label", "heat_blobs"), "track": ("patch", "mask_overlap_search"),
-           "hog_api": ("blocks", "normalize_blocks")}
+           "hog_api": ("blocks", "_normalize_serial")}
 
 
 def cold_families(names):
