@@ -120,8 +120,8 @@ class BoxFinder:
                 mask = np.ascontiguousarray(labels[y1:y2, x1:x2] == k + 1)
                 # The same levels the kernel's probe used (one definition).
                 levels = split_levels(np.float32(peaks[k]), float(cfg.threshold), _SPLIT_LEVELS)
-                parts = split_component(np.ascontiguousarray(region), mask, levels, min_size,
-                                        min_size, cfg.connectivity)
+                parts = split_component(np.ascontiguousarray(region), mask.view(np.uint8), levels,
+                                        min_size, min_size, cfg.connectivity)
                 # A seed that won no pixel yields an empty box; it is no car.
                 parts = parts[(parts[:, 2] > parts[:, 0]) & (parts[:, 3] > parts[:, 1])]
             if len(parts) < 2:

@@ -73,7 +73,7 @@ def orientation_tables(nbins):
     return cos_sin, angles
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _exact_bin(gx, gy, bounds, nbins):
     """scikit-image's rule: float64 atan2 in degrees modulo 180, then bounds."""
     angle = np.arctan2(np.float64(gy), np.float64(gx)) * (180.0 / np.pi) % 180.0
@@ -83,7 +83,7 @@ def _exact_bin(gx, gy, bounds, nbins):
     return -1  # angle rounded to exactly 180: scikit-image drops the pixel
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _gradient_row(image, y, channel, gx, gy):
     """Central-difference gradients of one image row, zero at the borders."""
     height, width = image.shape[0], image.shape[1]
@@ -99,7 +99,7 @@ def _gradient_row(image, y, channel, gx, gy):
         gx[x] = image[y, x + 1, channel] - image[y, x - 1, channel]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _bin_row(gx, gy, count, cos_sin, bounds, nbins, magnitude, bins):
     """Magnitude and orientation bin of ``count`` gradients."""
     for x in range(count):
@@ -124,7 +124,7 @@ def _bin_row(gx, gy, count, cos_sin, bounds, nbins, magnitude, bins):
         bins[x] = b
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _histogram_cell_row(image, cell_row, ppc_y, ppc_x, ncx, nbins, merge_mode,
                         cos_sin, bounds, out):
     """Fill ``out[cell_row]`` (shape (ncx, C_out, nbins))."""
@@ -224,7 +224,7 @@ def orientation_lut(nbins):
     return bins.astype(np.uint8)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _histogram_cell_row_u8(image, cell_row, ppc_y, ppc_x, ncx, nbins, bin_lut, target, index,
                            magnitude, acc, layout, out):
     """uint8 path for one cell row: gradient -> table index, then table -> histogram.
@@ -276,7 +276,7 @@ def _histogram_cell_row_u8(image, cell_row, ppc_y, ppc_x, ncx, nbins, bin_lut, t
                 out[dest + b * layout[3]] = acc[base + b] * scale
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _slot_targets(ncx, ppc_x, channels, nbins):
     """Histogram slot base of every element of a flat row (pixel-major)."""
     used = ncx * ppc_x * channels
@@ -867,7 +867,7 @@ _SCRATCH3 = _reduction_plan(_LANES, 3, 8, 9).size
 _SCRATCH1 = _reduction_plan(_LANES, 1, 8, 9).size
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _scalar_cells(flat, height, row_bytes, channels, y0, ppc_y, ppc_x, cx0, cx1, nbins, bin_lut,
                   acc):
     """Gradient-magnitude sums of cells cx0 .. cx1 - 1 of one cell row, one

@@ -292,13 +292,13 @@ def _hblock(typingctx, row, base, picks, weights, dest, block):
     return sig, codegen
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _hvalue(row, first, second, w_first, w_second, dest, e):
     dest[e] = np.int16((np.int32(row[uint64(first[e])]) * w_first[e]
                         + np.int32(row[uint64(second[e])]) * w_second[e]) >> 4)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _hgroups(row, first, second, w_first, w_second, base, usable, masks, weights, dest, g0,
              g1):
     """Groups g0 .. g1 - 1 one at a time: a pshufb group where its sources fit
@@ -311,14 +311,14 @@ def _hgroups(row, first, second, w_first, w_second, base, usable, masks, weights
                 _hvalue(row, first, second, w_first, w_second, dest, e)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _hrest(row, first, second, w_first, w_second, dest, e0):
     """The values past the last whole group, by the scalar loop."""
     for e in range(e0, uint64(dest.size)):
         _hvalue(row, first, second, w_first, w_second, dest, e)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _horizontal_avx2(row, first, second, w_first, w_second, base, usable, masks, weights,
                      block_base, picks, dest):
     groups = uint64(usable.size)
@@ -334,7 +334,7 @@ def _horizontal_avx2(row, first, second, w_first, w_second, base, usable, masks,
     _hrest(row, first, second, w_first, w_second, dest, groups * uint64(4))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _horizontal_avx512(row, first, second, w_first, w_second, base, usable, masks, weights,
                        block_base, picks, dest):
     blocks = uint64(block_base.size)
@@ -346,7 +346,7 @@ def _horizontal_avx512(row, first, second, w_first, w_second, base, usable, mask
     _hrest(row, first, second, w_first, w_second, dest, groups * uint64(4))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _horizontal_ssse3(row, first, second, w_first, w_second, base, usable, masks, weights,
                       block_base, picks, dest):
     groups = uint64(usable.size)
@@ -355,7 +355,7 @@ def _horizontal_ssse3(row, first, second, w_first, w_second, base, usable, masks
     _hrest(row, first, second, w_first, w_second, dest, groups * uint64(4))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _horizontal_scalar(row, first, second, w_first, w_second, base, usable, masks, weights,
                        block_base, picks, dest):
     for e in range(uint64(dest.size)):
@@ -408,7 +408,7 @@ def _vblock(typingctx, upper, lower, w_upper, w_lower, dest, start):
     return sig, codegen
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _vertical(upper, lower, w_upper, w_lower, dest):
     n = uint64(dest.size)
     blocks = n // uint64(_VBLOCK)
@@ -421,7 +421,7 @@ def _vertical(upper, lower, w_upper, w_lower, dest):
 
 
 # -- driver --------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _find(held, source):
     if held[0] == source:
         return 0
@@ -437,7 +437,7 @@ def _find(held, source):
 _CAN_AVX512BW, _CAN_AVX2, _CAN_SSSE3 = HAVE_AVX512BW, HAVE_AVX2, HAVE_SSSE3
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _horizontal(path, row, first, second, w_first, w_second, base, usable, masks, weights,
                 block_base, picks, dest):
     """The horizontal pass of ``path`` (0 AVX-512BW, 1 AVX2, 2 SSSE3, 3 scalar)."""

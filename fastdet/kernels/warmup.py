@@ -101,7 +101,8 @@ def _warm_label():
     labels, count = label_components(heat > 1.0, 8)
     component_boxes(labels, count)
     split = split_levels(np.float32(2.0), 1.0, levels)
-    split_component(np.ascontiguousarray(heat), np.ascontiguousarray(labels == 1), split, 4, 4, 8)
+    mask = np.ascontiguousarray(labels == 1).view(np.uint8)
+    split_component(np.ascontiguousarray(heat), mask, split, 4, 4, 8)
 
 
 def _warm_track():
