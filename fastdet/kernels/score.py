@@ -467,9 +467,13 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
                     else:
                         _window_dots_1(weights_flat, w_base, w_step, normalised, stride, at,
                                        second, channels, per_channel, scores, a0, row_len)
+    # Unsigned indices: with Python's negative-index wraparound LLVM turned
+    # this contiguous copy into vector gathers (slow on AMD).
     for iy in range(first_row, stop_row):
-        for ix in range(cols_out):
-            out[iy, ix] += scores[(iy - first_row) * row_len + ix]
+        base = uint64((iy - first_row) * row_len)
+        row = out[iy]
+        for ix in range(uint64(cols_out)):
+            row[ix] += scores[base + ix]
 
 
 @njit(cache=True, parallel=True)
