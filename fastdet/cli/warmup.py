@@ -27,12 +27,11 @@ def cmd_warmup(args):
     """Warm the families and print what each cost; returns the exit code."""
     from ..errors import InputError
     from ..kernels.cache import kernel_cache_dir
-    from ..kernels.warmup import FAMILIES, cold_families, warm
+    from ..kernels.warmup import FAMILIES, compiled_here, warm
 
     if args.processes is not None and args.processes < 1:
         raise InputError(f"--processes must be at least 1, got {args.processes}")
     names = args.families or list(FAMILIES)
-    cold = set(cold_families(names))
     print(f"kernel cache: {kernel_cache_dir()}")
     start = time.perf_counter()
     seconds = warm(names, processes=args.processes)
@@ -44,7 +43,7 @@ def cmd_warmup(args):
         if name in helper:
             print(f"| {name} | compiled (helper process) | {helper[name]:.2f} |")
         else:
-            what = "compiled" if name in cold else "loaded from the cache"
+            what = "compiled" if compiled_here(name) else "loaded from the cache"
             print(f"| {name} | {what} | {seconds[name]:.2f} |")
     print(f"\n{len(names)} families ready in {total:.1f} s"
           + (f" ({len(helper)} compiled by a second process)" if helper else ""))

@@ -30,8 +30,8 @@ import numpy as np
 #: Seconds each family took to compile on the development machine (empty
 #: cache, one process, Numba's own helpers included); :func:`split_families`
 #: balances two processes with these weights.
-COMPILE_WEIGHTS = {"label": 5.8, "colour": 3.0, "score": 2.6, "resize": 2.5, "heat": 1.5,
-                   "hog": 1.1, "convert": 0.5, "track": 1.2, "hog_api": 0.8}
+COMPILE_WEIGHTS = {"label": 4.2, "colour": 3.0, "score": 2.6, "resize": 2.5, "heat": 1.5,
+                   "split": 1.6, "hog": 1.1, "convert": 0.5, "track": 1.2, "hog_api": 0.8}
 
 
 def _frame_band(height, width):
@@ -90,14 +90,24 @@ def _warm_heat():
     box_heat_region(boxes, np.ones(2, np.float32), 32, 16)
 
 
-def _warm_label():
-    from .label import component_boxes, heat_blobs, label_components, split_component, split_levels
+def _two_blob_heat():
     heat = np.zeros((24, 40), np.float32)
     heat[4:20, 2:16] = 2.0
     heat[4:20, 20:34] = 2.0
     heat[10:14, 16:20] = 1.5
+    return heat
+
+
+def _warm_label():
+    from .label import heat_blobs
+    heat_blobs(_two_blob_heat(), 0, 0, 1.0, True, True, np.float32(0.3), 8, 4,
+               np.linspace(0.2, 0.8, 5))
+
+
+def _warm_split():
+    from .label import component_boxes, label_components, split_component, split_levels
+    heat = _two_blob_heat()
     levels = np.linspace(0.2, 0.8, 5)
-    heat_blobs(heat, 0, 0, 1.0, True, True, np.float32(0.3), 8, 4, levels)
     labels, count = label_components(heat > 1.0, 8)
     component_boxes(labels, count)
     split = split_levels(np.float32(2.0), 1.0, levels)
@@ -122,12 +132,14 @@ def _warm_hog_api():
     normalize_blocks(cell_histograms(grey, (8, 8), 9), (2, 2), "L2-Hys")
 
 
-#: Each family's warm-up, by name.
+#: Each family's warm-up, by name.  "label" is what every detection runs
+#: (heat_blobs); "split" the full-resolution split of a blob holding two cars.
 FAMILIES = {"convert": _warm_convert, "resize": _warm_resize, "hog": _warm_hog,
             "score": _warm_score, "colour": _warm_colour, "heat": _warm_heat,
-            "label": _warm_label, "track": _warm_track, "hog_api": _warm_hog_api}
+            "label": _warm_label, "split": _warm_split, "track": _warm_track,
+            "hog_api": _warm_hog_api}
 
-#: The families one detection with the default feature options needs.
+#: The families every detection with the default feature options runs.
 DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "heat", "label")
 
 #: One dispatcher per family whose cache entry tells whether the family was
@@ -135,8 +147,22 @@ DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "heat", "la
 _PROBES = {"convert": ("convert", "_bgr_to_hls"), "resize": ("resize", "_resize"),
            "hog": ("hog", "_cell_rows_u8_fast"), "score": ("score", "_add_hog_scores_phase"),
            "colour": ("colour", "_colour_maps"), "heat": ("heat", "box_heat_region"),
-           "label": ("label", "heat_blobs"), "track": ("patch", "mask_overlap_search"),
+           "label": ("label", "heat_blobs"), "split": ("label", "split_component"),
+           "track": ("patch", "mask_overlap_search"),
            "hog_api": ("blocks", "_normalize_serial")}
+
+
+def _probe(name):
+    import importlib
+
+    module_name, attribute = _PROBES[name]
+    return getattr(importlib.import_module(f"{__package__}.{module_name}"), attribute, None)
+
+
+def compiled_here(name):
+    """Whether this process compiled family ``name``'s main kernel (rather than loading it)."""
+    stats = getattr(_probe(name), "stats", None)
+    return bool(stats is not None and stats.cache_misses and not stats.cache_hits)
 
 
 def cold_families(names):
@@ -147,13 +173,9 @@ def cold_families(names):
     writes one per cached function).  Stale entries (edited sources) count
     as warm: Numba recompiles those itself.
     """
-    import importlib
-
     cold = []
     for name in names:
-        module_name, attribute = _PROBES[name]
-        dispatcher = getattr(importlib.import_module(f"{__package__}.{module_name}"), attribute,
-                             None)
+        dispatcher = _probe(name)
         if dispatcher is None or dispatcher.signatures:
             continue
         index = getattr(getattr(getattr(dispatcher, "_cache", None), "_cache_file", None),
