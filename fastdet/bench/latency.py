@@ -168,18 +168,21 @@ def format_threads(results):
 
     A thread's busy time is its colour conversion and scoring; the rest of
     the frame it waited for the others or (the calling thread) found the
-    boxes.  Idle share: ``1 - sum(busy) / (threads * total)``.
+    boxes.  Idle share: ``1 - sum(busy) / (threads * total)``.  CPU time is
+    the busy time less what other processes took from the thread.
     """
     rows = [r for r in results if r.thread_busy and r.stages]
     if not rows:
         return ""
     single = next((r for r in rows if len(r.thread_busy) == 1), None)
-    lines = ["| pipeline | total ms/frame | busy ms per thread | idle share "
-             "| x faster than 1 thread (median) |", "|---|---:|---|---:|---:|"]
+    lines = ["| pipeline | total ms/frame | busy ms per thread | CPU ms per thread | idle share "
+             "| x faster than 1 thread (median) |", "|---|---:|---|---|---:|---:|"]
     for result in rows:
         total = result.stages.get("total", 0.0)
         busy = " / ".join(f"{ms:.2f}" for ms in result.thread_busy)
+        cpu = " / ".join(f"{ms:.2f}" for ms in result.thread_cpu)
         idle = 1 - sum(result.thread_busy) / (len(result.thread_busy) * total) if total else 0.0
         ratio = single.median_ms / result.median_ms if single else math.nan
-        lines.append(f"| {result.name} | {total:.2f} | {busy} | {idle:.0%} | {_ratio(ratio)} |")
+        lines.append(f"| {result.name} | {total:.2f} | {busy} | {cpu} | {idle:.0%} "
+                     f"| {_ratio(ratio)} |")
     return "\n".join(lines)

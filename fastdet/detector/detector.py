@@ -66,6 +66,9 @@ class Detector:
         Seconds each thread worked on the last frame's conversion and
         scoring (the calling thread first); the rest of ``timings["total"]``
         it waited, or (the calling thread) found boxes.
+    thread_cpu : list of float
+        CPU seconds each thread used for that work (``time.thread_time``):
+        below ``thread_busy`` when other processes took the cores.
 
     Notes
     -----
@@ -98,6 +101,7 @@ class Detector:
         self._bands = {}
         self.timings = dict.fromkeys(STAGES, 0.0)
         self.thread_busy = [0.0] * self.threads
+        self.thread_cpu = [0.0] * self.threads
         self._loader = None
         if preload:
             # Load (or compile) the kernels while the caller reads its first
@@ -203,8 +207,8 @@ class Detector:
             self._score_concurrently(frame, prepared, plans, bands, grids, workers)
         else:
             timings = dict.fromkeys(STAGES, 0.0)
-            self.thread_busy = [self._score_share(frame, prepared, plans, iter(bands), grids,
-                                                  timings, (0, 1))] + [0.0] * (self.threads - 1)
+            share = self._score_share(frame, prepared, plans, iter(bands), grids, timings, (0, 1))
+            self._record_shares([share])
             self._add_timings(timings)
         threshold = self.config.search.decision_threshold
         boxes, scores, scales = [], [], []
@@ -224,12 +228,14 @@ class Detector:
 
     def _score_share(self, frame, prepared, plans, tasks, grids, timings, part, converted=None):
         """One thread's share of a frame: its part of the colour conversion, then
-        bands taken from ``tasks`` until none is left.  Returns the seconds it worked.
+        bands taken from ``tasks`` until none is left.  Returns the seconds it
+        worked and the CPU seconds it used.
 
         ``part``: ``(k, n)``, this thread converts the k-th of n row chunks;
         ``converted``: a barrier all chunks pass before any band is scored.
         """
         try:
+            cpu = time.thread_time()
             start = time.perf_counter()
             if prepared.converted is not None:
                 rows = prepared.converted.shape[0]
@@ -245,7 +251,7 @@ class Detector:
                 self.scorer.score_band(prepared, plans[band.index], band.first, band.stop,
                                        grids[band.index], timings, band.slot)
                 busy += time.perf_counter() - begin
-            return busy
+            return busy, time.thread_time() - cpu
         except BaseException:
             if converted is not None:
                 converted.abort()  # the other threads stop waiting for this one
@@ -263,11 +269,15 @@ class Detector:
             mine = self._score_share(frame, prepared, plans, tasks, grids, shares[0],
                                      (0, workers), converted)
         except threading.BrokenBarrierError:
-            mine = 0.0  # a worker failed: future.result() raises its error
-        busy = [mine] + [future.result() for future in futures]
-        self.thread_busy = busy + [0.0] * (self.threads - workers)
+            mine = (0.0, 0.0)  # a worker failed: future.result() raises its error
+        self._record_shares([mine] + [future.result() for future in futures])
         for timings in shares:
             self._add_timings(timings)
+
+    def _record_shares(self, shares):
+        idle = [0.0] * (self.threads - len(shares))
+        self.thread_busy = [busy for busy, _ in shares] + idle
+        self.thread_cpu = [cpu for _, cpu in shares] + idle
 
     def _add_timings(self, timings):
         for stage, seconds in timings.items():
