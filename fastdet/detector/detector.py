@@ -27,6 +27,15 @@ from .plan import plan_scales
 from .scoring import STAGES, Hits, ScaleScorer, kernel_families, scale_bands
 
 
+def _load_kernels(families):
+    """The preload thread: a failure here only means each kernel loads (and
+    reports any error) at its first call instead."""
+    try:
+        warm(families)
+    except Exception:  # noqa: BLE001 - see the docstring
+        pass
+
+
 class Detector:
     """HOG + linear-SVM vehicle detector for single frames.
 
@@ -106,7 +115,8 @@ class Detector:
         if preload:
             # Load (or compile) the kernels while the caller reads its first
             # frame; the first detection waits for it (see _kernels_loaded).
-            self._loader = threading.Thread(target=warm, args=(kernel_families(model.options),),
+            self._loader = threading.Thread(target=_load_kernels,
+                                            args=(kernel_families(model.options),),
                                             name="fastdet-kernels", daemon=True)
             self._loader.start()
 
