@@ -436,6 +436,10 @@ def _find(held, source):
 #: code stays valid because Numba keys its cache by the host CPU.
 _CAN_AVX512BW, _CAN_AVX2, _CAN_SSSE3 = HAVE_AVX512BW, HAVE_AVX2, HAVE_SSSE3
 
+#: The best path this CPU has: the only one :func:`_resize` compiles.
+NATIVE_PATH = 0 if HAVE_AVX512BW else 1 if HAVE_AVX2 else 2 if HAVE_SSSE3 else 3
+_NATIVE_AVX512, _NATIVE_AVX2, _NATIVE_SSSE3 = NATIVE_PATH == 0, NATIVE_PATH == 1, NATIVE_PATH == 2
+
 
 @njit(cache=True, nogil=True)
 def _horizontal(path, row, first, second, w_first, w_second, base, usable, masks, weights,
@@ -461,29 +465,80 @@ def _horizontal(path, row, first, second, w_first, w_second, base, usable, masks
 
 
 @njit(cache=True, nogil=True)
-def _resize(path, src, first, second, w_first, w_second, base, usable, masks, weights,
-            block_base, picks, y_first, y_second, w_y_first, w_y_second, out):
-    # Two horizontal rows kept: consecutive output rows share source rows.
+def _horizontal_native(row, first, second, w_first, w_second, base, usable, masks, weights,
+                       block_base, picks, dest):
+    """The horizontal pass of :data:`NATIVE_PATH`: the other paths are pruned
+    before typing, so they are never compiled."""
+    if _NATIVE_AVX512:
+        _horizontal_avx512(row, first, second, w_first, w_second, base, usable, masks,
+                           weights, block_base, picks, dest)
+    elif _NATIVE_AVX2:
+        _horizontal_avx2(row, first, second, w_first, w_second, base, usable, masks,
+                         weights, block_base, picks, dest)
+    elif _NATIVE_SSSE3:
+        _horizontal_ssse3(row, first, second, w_first, w_second, base, usable, masks,
+                          weights, block_base, picks, dest)
+    else:
+        _horizontal_scalar(row, first, second, w_first, w_second, base, usable, masks,
+                           weights, block_base, picks, dest)
+
+
+@njit(cache=True, nogil=True)
+def _row_slots(held, upper, lower):
+    """Where output row taps ``upper`` and ``lower`` are kept among the two
+    horizontal rows, and whether each must be computed first (``held`` is
+    updated).  Consecutive output rows share source rows."""
+    slot_upper = _find(held, upper)
+    slot_lower = _find(held, lower)
+    new_upper = slot_upper < 0
+    new_lower = False
+    if new_upper:
+        # Never evict the row the other tap sits in.
+        slot_upper = 1 if slot_lower == 0 else 0
+        held[slot_upper] = upper
+    if slot_lower < 0:
+        if lower == upper:
+            slot_lower = slot_upper
+        else:
+            slot_lower = 1 - slot_upper
+            held[slot_lower] = lower
+            new_lower = True
+    return slot_upper, new_upper, slot_lower, new_lower
+
+
+@njit(cache=True, nogil=True)
+def _resize(src, first, second, w_first, w_second, base, usable, masks, weights, block_base,
+            picks, y_first, y_second, w_y_first, w_y_second, out):
+    """The resize with this CPU's best horizontal path, the only one compiled."""
     rows = np.empty((2, out.shape[1]), dtype=np.int16)
     held = np.array([-1, -1], dtype=np.int64)
     for dy in range(out.shape[0]):
         upper, lower = y_first[dy], y_second[dy]
-        slot_upper = _find(held, upper)
-        slot_lower = _find(held, lower)
-        if slot_upper < 0:
-            # Never evict the row the other tap sits in.
-            slot_upper = 1 if slot_lower == 0 else 0
+        slot_upper, new_upper, slot_lower, new_lower = _row_slots(held, upper, lower)
+        if new_upper:
+            _horizontal_native(src[upper], first, second, w_first, w_second, base, usable,
+                               masks, weights, block_base, picks, rows[slot_upper])
+        if new_lower:
+            _horizontal_native(src[lower], first, second, w_first, w_second, base, usable,
+                               masks, weights, block_base, picks, rows[slot_lower])
+        _vertical(rows[slot_upper], rows[slot_lower], w_y_first[dy], w_y_second[dy], out[dy])
+
+
+@njit(cache=True, nogil=True)
+def _resize_path(path, src, first, second, w_first, w_second, base, usable, masks, weights,
+                 block_base, picks, y_first, y_second, w_y_first, w_y_second, out):
+    """:func:`_resize` with any path the CPU has (tests compare every path)."""
+    rows = np.empty((2, out.shape[1]), dtype=np.int16)
+    held = np.array([-1, -1], dtype=np.int64)
+    for dy in range(out.shape[0]):
+        upper, lower = y_first[dy], y_second[dy]
+        slot_upper, new_upper, slot_lower, new_lower = _row_slots(held, upper, lower)
+        if new_upper:
             _horizontal(path, src[upper], first, second, w_first, w_second, base, usable,
                         masks, weights, block_base, picks, rows[slot_upper])
-            held[slot_upper] = upper
-        if slot_lower < 0:
-            if lower == upper:
-                slot_lower = slot_upper
-            else:
-                slot_lower = 1 - slot_upper
-                _horizontal(path, src[lower], first, second, w_first, w_second, base, usable,
-                            masks, weights, block_base, picks, rows[slot_lower])
-                held[slot_lower] = lower
+        if new_lower:
+            _horizontal(path, src[lower], first, second, w_first, w_second, base, usable,
+                        masks, weights, block_base, picks, rows[slot_lower])
         _vertical(rows[slot_upper], rows[slot_lower], w_y_first[dy], w_y_second[dy], out[dy])
 
 
@@ -608,5 +663,8 @@ def resize_linear(image, size, out=None, rows=None):
     x_tables = column_tables(source_w, width, channels)
     y_tables = [table[first:stop] for table in linear_tables(source_h, height, False)]
     path = 0 if HAVE_AVX512BW else 1 if HAVE_AVX2 else 2 if HAVE_SSSE3 else 3
-    _resize(path, source, *x_tables, *y_tables, dest)
+    if path == NATIVE_PATH:
+        _resize(source, *x_tables, *y_tables, dest)
+    else:  # a path forced by the tests
+        _resize_path(path, source, *x_tables, *y_tables, dest)
     return out
