@@ -429,7 +429,9 @@ def _colour_maps(path, image, lut, tile, factor, want_tiles, want_box, tiles, bo
     if path == PATH_AVX512 and not (_CAN_AVX512BW and want_tiles and _bin_table(lut_flat, table)):
         path = PATH_SCALAR
     columns = np.empty(width if path == PATH_AVX512 else 0, np.float32)
-    done = 0                                   # box rows written so far
+    # Box rows written so far; an int64 from the start, not the literal 0,
+    # so that _box_rows is compiled once.
+    done = np.int64(0)
     for ty in range(tiles.shape[0] if want_tiles else 0):
         scalar = True
         if _CAN_AVX512BW:

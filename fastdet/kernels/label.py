@@ -432,7 +432,7 @@ def split_component(heat, mask, levels, min_width, min_height, connectivity):
             for x in range(width):
                 if not mask[y, x]:
                     continue
-                best = 0
+                best = np.int64(0)  # not the literal 0: _include compiles once
                 best_distance = np.inf
                 for k in range(big):
                     dx = max(seeds[k, 0] - x, 0, x - (seeds[k, 2] - 1))
