@@ -357,6 +357,7 @@ def to_phase_layout(cells, step, pad=0):
     return phase
 
 
+@functools.lru_cache(maxsize=256)
 def _layout(shape, phase_step=None, cells_x=None):
     """Flat-index strides of a cell array: (row, position, channel, bin, step, K).
 
@@ -372,7 +373,10 @@ def _layout(shape, phase_step=None, cells_x=None):
         rows, channels, nbins, length = shape
         strides = (channels * nbins * length, 1, nbins * length, length, phase_step,
                    -(-cells_x // phase_step))
-    return np.array(strides, dtype=np.uint64)
+    # Cached (the same few shapes every frame): read-only, shared.
+    layout = np.array(strides, dtype=np.uint64)
+    layout.flags.writeable = False
+    return layout
 
 
 def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, parallel=False, out=None,
