@@ -12,6 +12,7 @@ from __future__ import annotations
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import cv2
 import numba
@@ -25,6 +26,15 @@ from .frames import as_bgr_frame
 from .model import Model, load_model
 from .plan import plan_scales
 from .scoring import STAGES, Hits, ScaleScorer, kernel_families, scale_bands
+
+
+@dataclass(frozen=True)
+class _Windows:
+    """All windows of a frame size: boxes, the plan each is from, where each plan starts."""
+
+    boxes: np.ndarray        # int32 (N, 4)
+    scale_index: np.ndarray  # int64 (N,)
+    starts: list
 
 
 def _load_kernels(families):
@@ -108,6 +118,7 @@ class Detector:
         self.box_finder = BoxFinder(config or DetectorConfig())
         self._plans = {}
         self._bands = {}
+        self._all_windows = {}
         self.timings = dict.fromkeys(STAGES, 0.0)
         self.thread_busy = [0.0] * self.threads
         self.thread_cpu = [0.0] * self.threads
@@ -130,6 +141,7 @@ class Detector:
         self.box_finder.config = config
         self._plans = {}
         self._bands = {}
+        self._all_windows = {}
 
     def __del__(self):
         pool = getattr(self, "_pool", None)
@@ -210,7 +222,12 @@ class Detector:
         size = (frame.shape[1], frame.shape[0])
         plans = self.plans(size)
         bands = self.bands(size)
-        grids = [np.full(plan.grid, self.model.bias, dtype=np.float32) for plan in plans]
+        windows = self._windows(size)
+        # Every scale's grid is a view of one score array: one threshold and
+        # one gather find the hits of all of them.
+        scores = np.full(len(windows.scale_index), self.model.bias, dtype=np.float32)
+        grids = [scores[start:start + plan.n_windows].reshape(plan.grid)
+                 for plan, start in zip(plans, windows.starts)]
         prepared = self.scorer.frame_buffers(plans)
         workers = min(self.threads, max(len(bands), 1))
         if workers > 1:
@@ -220,21 +237,21 @@ class Detector:
             share = self._score_share(frame, prepared, plans, iter(bands), grids, timings, (0, 1))
             self._record_shares([share])
             self._add_timings(timings)
-        threshold = self.config.search.decision_threshold
-        boxes, scores, scales = [], [], []
-        scored = 0
-        for index, (plan, grid) in enumerate(zip(plans, grids)):
-            grid = grid.ravel()
-            scored += grid.size
-            hit = np.flatnonzero(grid > threshold)
-            if hit.size:
-                boxes.append(plan.boxes[hit])
-                scores.append(grid[hit])
-                scales.append(np.full(hit.size, index, dtype=np.int64))
-        if not boxes:
-            return Hits(np.zeros((0, 4), np.int32), np.zeros(0, np.float32),
-                        np.zeros(0, np.int64), scored)
-        return Hits(np.concatenate(boxes), np.concatenate(scores), np.concatenate(scales), scored)
+        hit = np.flatnonzero(scores > self.config.search.decision_threshold)
+        return Hits(windows.boxes[hit], scores[hit], windows.scale_index[hit], len(scores))
+
+    def _windows(self, frame_size):
+        """Every window of a frame size's plans, in plan order (cached)."""
+        windows = self._all_windows.get(frame_size)
+        if windows is None:
+            plans = self.plans(frame_size)
+            counts = [plan.n_windows for plan in plans]
+            windows = self._all_windows[frame_size] = _Windows(
+                np.concatenate([plan.boxes for plan in plans]) if plans
+                else np.zeros((0, 4), np.int32),
+                np.repeat(np.arange(len(plans), dtype=np.int64), counts),
+                np.cumsum([0] + counts[:-1]).tolist())
+        return windows
 
     def _score_share(self, frame, prepared, plans, tasks, grids, timings, part, converted=None):
         """One thread's share of a frame: its part of the colour conversion, then
