@@ -25,7 +25,7 @@ from .config import DetectorConfig
 from .frames import as_bgr_frame
 from .model import Model, load_model
 from .plan import plan_scales
-from .scoring import STAGES, Hits, ScaleScorer, kernel_families, scale_bands
+from .scoring import STAGES, Hits, ScaleScorer, kernel_families
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,48 @@ class _Windows:
     boxes: np.ndarray        # int32 (N, 4)
     scale_index: np.ndarray  # int64 (N,)
     starts: list
+
+
+class _Aborted(Exception):
+    """Another thread of the frame failed (its own error is raised by the caller)."""
+
+
+class _TaskQueue:
+    """A frame's tasks, handed out in order to whichever thread asks; a scale's
+    ``"windows"`` task waits until all of its ``"rows"`` tasks are done."""
+
+    def __init__(self, tasks):
+        self._tasks = iter(tasks)  # next() on a tuple iterator is atomic under the GIL
+        self._lock = threading.Lock()
+        self._pending = {}
+        for task in tasks:
+            if task.kind == "rows":
+                self._pending[task.index] = self._pending.get(task.index, 0) + 1
+        self._done = {index: threading.Event() for index in self._pending}
+        self._aborted = False
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        return next(self._tasks)
+
+    def rows_done(self, index):
+        with self._lock:
+            self._pending[index] -= 1
+            if self._pending[index] == 0:
+                self._done[index].set()
+
+    def wait_for_rows(self, index):
+        if index in self._done:
+            self._done[index].wait()
+        if self._aborted:
+            raise _Aborted
+
+    def abort(self):
+        self._aborted = True
+        for event in self._done.values():
+            event.set()
 
 
 def _load_kernels(families):
@@ -61,10 +103,10 @@ class Detector:
         (``NUMBA_NUM_THREADS``, all cores by default); 1 runs everything on
         the calling thread.  With more, the calling thread and a pool share
         each frame (the kernels release the GIL): each converts a chunk of
-        the searched band's rows, then they take the frame's bands of
-        window rows (:func:`~fastdet.detector.scoring.scale_bands`: whole
-        scales, the largest cut in two) costliest first, as each finishes
-        one.  OpenCV is set to the same count so the two do not
+        the searched band's rows, then they take the frame's tasks
+        (:meth:`~fastdet.detector.scoring.ScaleScorer.bands`: whole scales;
+        the largest one's pixel rows cut in two, then its windows)
+        costliest first, as each finishes one.  OpenCV is set to the same count so the two do not
         oversubscribe the cores.
     preload : bool
         Load the kernels a detection needs in a background thread from
@@ -171,11 +213,11 @@ class Detector:
         return plans
 
     def bands(self, frame_size):
-        """The frame's scoring tasks for this detector's threads (see :func:`.scoring.scale_bands`)."""
+        """The frame's scoring tasks for this detector's threads (see :meth:`.ScaleScorer.bands`)."""
         bands = self._bands.get(frame_size)
         if bands is None:
-            bands = self._bands[frame_size] = scale_bands(
-                self.plans(frame_size), self.model.options.pixels_per_cell, self.threads)
+            bands = self._bands[frame_size] = self.scorer.bands(self.plans(frame_size),
+                                                                self.threads)
         return bands
 
     # -- stage 1: windows ---------------------------------------------------
@@ -234,7 +276,8 @@ class Detector:
             self._score_concurrently(frame, prepared, plans, bands, grids, workers)
         else:
             timings = dict.fromkeys(STAGES, 0.0)
-            share = self._score_share(frame, prepared, plans, iter(bands), grids, timings, (0, 1))
+            share = self._score_share(frame, prepared, plans, _TaskQueue(bands), grids, timings,
+                                      (0, 1))
             self._record_shares([share])
             self._add_timings(timings)
         hit = np.flatnonzero(scores > self.config.search.decision_threshold)
@@ -272,21 +315,26 @@ class Detector:
             timings["resize_convert"] += busy
             if converted is not None:
                 converted.wait()
-            # Bands are taken in order, costliest first, by whichever thread is free.
-            for band in tasks:
+            # Tasks are taken in order, costliest first, by whichever thread is free.
+            for task in tasks:
+                if task.kind == "windows":
+                    tasks.wait_for_rows(task.index)
                 begin = time.perf_counter()
-                self.scorer.score_band(prepared, plans[band.index], band.first, band.stop,
-                                       grids[band.index], timings, band.slot)
+                self.scorer.run(task, prepared, plans, grids, timings)
                 busy += time.perf_counter() - begin
+                if task.kind == "rows":
+                    tasks.rows_done(task.index)
             return busy, time.thread_time() - cpu
         except BaseException:
+            # The other threads stop waiting for this one.
+            tasks.abort()
             if converted is not None:
-                converted.abort()  # the other threads stop waiting for this one
+                converted.abort()
             raise
 
     def _score_concurrently(self, frame, prepared, plans, bands, grids, workers):
         """Score the bands of a frame on ``workers`` threads, the calling one included."""
-        tasks = iter(bands)  # next() on a list iterator is atomic under the GIL
+        tasks = _TaskQueue(bands)
         converted = threading.Barrier(workers)
         shares = [dict.fromkeys(STAGES, 0.0) for _ in range(workers)]
         futures = [self._worker_pool().submit(self._score_share, frame, prepared, plans, tasks,
@@ -295,7 +343,7 @@ class Detector:
         try:
             mine = self._score_share(frame, prepared, plans, tasks, grids, shares[0],
                                      (0, workers), converted)
-        except threading.BrokenBarrierError:
+        except (threading.BrokenBarrierError, _Aborted):
             mine = (0.0, 0.0)  # a worker failed: future.result() raises its error
         self._record_shares([mine] + [future.result() for future in futures])
         for timings in shares:

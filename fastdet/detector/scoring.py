@@ -71,45 +71,21 @@ def kernel_families(options):
 
 @dataclass(frozen=True)
 class ScaleBand:
-    """Window rows ``first`` .. ``stop - 1`` of the scale plan at ``index``: one task of a frame.
+    """One task of a frame's scoring, on the scale plan at ``index``.
 
-    ``slot`` picks the band's work arrays (bands of one plan run at once);
-    ``pixels``: the resized pixels it computes, its estimated cost.
+    ``kind`` is ``"whole"`` (window rows ``first`` .. ``stop - 1``: their
+    pixels' features, then their margins), ``"rows"`` (the features of
+    scaled pixel rows ``first`` .. ``stop - 1`` only) or ``"windows"`` (the
+    margins of window rows ``first`` .. ``stop - 1`` from features that the
+    plan's ``"rows"`` tasks computed: it runs after them).  ``pixels``: the
+    resized pixels it computes, its estimated cost.
     """
 
     index: int
+    kind: str
     first: int
     stop: int
-    slot: int
     pixels: int
-
-
-def scale_bands(plans, pixels_per_cell, threads):
-    """A frame's scoring tasks for ``threads`` threads, costliest first.
-
-    With one thread, one band per scale.  With more, a scale costing more
-    than ``1 / (2 * threads)`` of the frame (the 48-px scale of the default
-    search: 45 % of the resized pixels) is cut into bands of window rows,
-    so that the threads, taking the next task as they finish one, end
-    together.  A band recomputes the cell rows it shares with the next
-    (``window - step`` pixels), which is why only large scales are cut.
-    """
-    def pixels(plan, first, stop):
-        step_px = plan.step_cells * pixels_per_cell
-        return ((stop - 1 - first) * step_px + WINDOW) * plan.scaled_size[0]
-
-    total = sum(pixels(plan, 0, plan.grid[0]) for plan in plans)
-    bands = []
-    for index, plan in enumerate(plans):
-        rows = plan.grid[0]
-        whole = pixels(plan, 0, rows)
-        count = 1
-        if threads > 1 and total:
-            count = min(rows, max(1, math.ceil(whole * 2 * threads / total)))
-        for part in range(count):
-            first, stop = part * rows // count, (part + 1) * rows // count
-            bands.append(ScaleBand(index, first, stop, part, pixels(plan, first, stop)))
-    return tuple(sorted(bands, key=lambda band: -band.pixels))
 
 
 class ScaleScorer:
@@ -140,17 +116,17 @@ class ScaleScorer:
         self._hog_channels = model.layout.hog_channels
         self._workspace = {}
 
-    def _buffer(self, plan, kind, shape, dtype, slot=0):
+    def _buffer(self, plan, kind, shape, dtype):
         """A scale's work array, reused from frame to frame.
 
         Fresh multi-megabyte arrays every frame would cost page faults;
         callers get the array back filled, so the reuse is invisible.  Each
-        plan object (and each ``slot``: bands of one plan computed at once)
-        has its own arrays, so work scored concurrently never shares one;
-        the plan is kept with them so that a recycled ``id`` of a discarded
-        plan is never mistaken for a live one.
+        plan object has its own arrays, so scales scored concurrently never
+        share one (tasks of one scale write disjoint rows of them); the plan
+        is kept with them so that a recycled ``id`` of a discarded plan is
+        never mistaken for a live one.
         """
-        key = (kind, id(plan), slot)
+        key = (kind, id(plan))
         entry = self._workspace.get(key)
         if entry is None or entry[0] is not plan:
             if len(self._workspace) > _MAX_BUFFERS:
@@ -159,7 +135,7 @@ class ScaleScorer:
             entry = self._workspace[key] = (plan, np.empty(shape, dtype))
         return entry[1]
 
-    def scaled_region(self, region, plan, channels, rows=None, slot=0):
+    def scaled_region(self, region, plan, channels, rows=None):
         """A scale's region resized to ``plan.scaled_size``; at scale 1, the
         region itself when its rows are contiguous (a full-width region).
 
@@ -170,15 +146,15 @@ class ScaleScorer:
         if region.shape[:2] == (height, width) and region.flags.c_contiguous:
             return region
         # Bit-identical to cv2.resize(..., INTER_LINEAR), in about half its time.
-        out = self._buffer(plan, ("resized", channels), (height, width, channels), np.uint8, slot)
+        out = self._buffer(plan, ("resized", channels), (height, width, channels), np.uint8)
         return resize_linear(region, plan.scaled_size, out=out, rows=rows)
 
-    def _cells_buffer(self, plan, slot=0):
+    def _cells_buffer(self, plan):
         """The phase-layout cell array of a scale."""
         shape = phase_layout_shape(*self._cell_grid(plan), self._hog_channels,
                                    self.options.orientations, plan.step_cells,
                                    self._phase_pad(plan))
-        return self._buffer(plan, "cells", shape, np.float32, slot)
+        return self._buffer(plan, "cells", shape, np.float32)
 
     def _cell_grid(self, plan):
         """``(rows, columns)`` of HOG cells of a scale's resized region."""
@@ -245,60 +221,158 @@ class ScaleScorer:
         self.score_band(prepared, plan, 0, plan.grid[0], scores, timings)
         return scores
 
-    def score_band(self, prepared, plan, first, stop, scores, timings, slot=0):
+    def bands(self, plans, threads):
+        """A frame's scoring tasks for ``threads`` threads, costliest first.
+
+        With one thread, one ``"whole"`` task per scale.  With more, a scale
+        costing more than ``1 / (2 * threads)`` of the frame's resized pixels
+        (the 48-px scale of the default search: 45 % of them) is cut into
+        ``"rows"`` tasks of whole colour tiles, which threads compute at the
+        same time, and one ``"windows"`` task scoring all its windows after
+        them.  The threads take the next task as they finish one.
+        """
+        ppc = self.options.pixels_per_cell
+        used = [((plan.grid[0] - 1) * plan.step_cells * ppc + WINDOW) * plan.scaled_size[0]
+                for plan in plans]
+        total = sum(used)
+        tasks = []
+        for index, plan in enumerate(plans):
+            count = 1
+            if threads > 1 and total:
+                count = math.ceil(used[index] * 2 * threads / total)
+            height = used[index] // plan.scaled_size[0]
+            align = self._row_alignment(plan)
+            cuts = sorted({round(height * part / count / align) * align
+                           for part in range(1, count)} - {0, height})
+            if not cuts:
+                tasks.append(ScaleBand(index, "whole", 0, plan.grid[0], used[index]))
+                continue
+            for top, bottom in zip([0] + cuts, cuts + [height]):
+                tasks.append(ScaleBand(index, "rows", top, bottom,
+                                       (bottom - top) * plan.scaled_size[0]))
+            tasks.append(ScaleBand(index, "windows", 0, plan.grid[0], 0))
+        return tuple(sorted(tasks, key=lambda task: -task.pixels))
+
+    def _row_alignment(self, plan):
+        """Row cuts at multiples of this keep cells, colour tiles and boxes whole."""
+        options = self.options
+        step_px = plan.step_cells * options.pixels_per_cell
+        align = options.pixels_per_cell
+        if options.hist_bins:
+            align = math.lcm(align, math.gcd(step_px, WINDOW))
+        if options.spatial_size:
+            align = math.lcm(align, WINDOW // options.spatial_size)
+        return align
+
+    def run(self, task, prepared, plans, grids, timings):
+        """Run one task of :meth:`bands` (its ``"windows"`` task only after its ``"rows"``)."""
+        plan = plans[task.index]
+        if task.kind == "rows":
+            self.score_rows(prepared, plan, task.first, task.stop, timings)
+        elif task.kind == "windows":
+            self.score_windows(plan, task.first, task.stop, grids[task.index], timings)
+        else:
+            self.score_band(prepared, plan, task.first, task.stop, grids[task.index], timings)
+
+    def score_band(self, prepared, plan, first, stop, scores, timings):
         """Add the margins of window rows ``first`` .. ``stop - 1`` of a scale to ``scores``.
 
         Only the resized rows, cells and colour maps those windows cover are
-        computed, into the work arrays of ``slot``; each window's margin is
-        exactly what :meth:`score_scale` gives it.  Bands of one plan scored
-        at the same time need different slots.
+        computed; each window's margin is exactly what :meth:`score_scale`
+        gives it.
         """
-        options = self.options
         if first >= stop:
             return
+        step_px = plan.step_cells * self.options.pixels_per_cell
+        self.score_rows(prepared, plan, first * step_px, (stop - 1) * step_px + WINDOW, timings)
+        self.score_windows(plan, first, stop, scores, timings)
+
+    def score_rows(self, prepared, plan, top, bottom, timings):
+        """The features of scaled pixel rows ``top`` .. ``bottom - 1`` of a scale.
+
+        The rows are resized (plus one either side, for the gradients of the
+        outer cells), their cells and colour maps computed into the plan's
+        work arrays.  ``top`` and ``bottom`` keep cells and colour tiles
+        whole (see :meth:`_row_alignment`); tasks of one plan with disjoint
+        rows may run at the same time.
+        """
+        options = self.options
         ppc = options.pixels_per_cell
-        step_px = plan.step_cells * ppc
-        # The pixel rows the band's windows cover, plus one either side for
-        # the gradients of their outer cells.
-        top, bottom = first * step_px, (stop - 1) * step_px + WINDOW
         t0 = time.perf_counter()
         ox, oy = prepared.origin
         x0, y0, x1, y1 = plan.roi
         region = (slice(y0 - oy, y1 - oy), slice(x0 - ox, x1 - ox))
         rows = (top - 1, bottom + 1)
-        converted = self.scaled_region(prepared.converted[region], plan, 3, rows, slot)
+        converted = self.scaled_region(prepared.converted[region], plan, 3, rows)
         grey = None
         if prepared.grey is not None:
-            grey = self.scaled_region(prepared.grey[region][:, :, None], plan, 1, rows, slot)
+            grey = self.scaled_region(prepared.grey[region][:, :, None], plan, 1, rows)
         t1 = time.perf_counter()
         timings["resize_convert"] += t1 - t0
-        band_scores = scores[first:stop]
         if options.use_hog:
-            cpb = options.cells_per_block
             # Cells in the phase layout of the window step, so each block row
             # is normalised and scored along whole rows, never writing the
             # block map to memory.
-            cells = cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
-                                    options.orientations, out=self._cells_buffer(plan, slot),
-                                    phase_step=plan.step_cells,
-                                    phase_pad=self._phase_pad(plan),
-                                    rows=(top // ppc, bottom // ppc))
+            cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
+                            options.orientations, out=self._cells_buffer(plan),
+                            phase_step=plan.step_cells, phase_pad=self._phase_pad(plan),
+                            rows=(top // ppc, bottom // ppc))
             t2 = time.perf_counter()
-            add_hog_scores_from_phase_cells(cells, plan.scaled_size[0] // ppc, (cpb, cpb),
-                                            options.block_norm, self._hog_weights,
-                                            plan.step_cells, scores,
-                                            window_rows=(first, stop))
             timings["cells"] += t2 - t1
-            t1 = time.perf_counter()
-            timings["blocks_score"] += t1 - t2
+            t1 = t2
         if options.spatial_size or options.hist_bins:
-            tile = math.gcd(step_px, WINDOW)
-            factor = WINDOW // options.spatial_size if options.spatial_size else 0
-            # Tiles and boxes are local to their pixels: the band's rows
-            # (a multiple of both from the top) give the band's maps.
-            tiles, spatial = colour_maps(converted[top:bottom], self._hist_lut, tile, factor)
+            tile, factor = self._colour_grid(plan)
+            tiles, box = self._colour_buffers(plan)
+            # Tiles and boxes are local to their pixels: the rows' maps are
+            # the rows of the scale's maps.
+            colour_maps(converted[top:bottom], self._hist_lut, tile, factor,
+                        out=(tiles[top // tile:bottom // tile], box[top // max(factor, 1):
+                                                                    bottom // max(factor, 1)]))
+            timings["colour_score"] += time.perf_counter() - t1
+
+    def score_windows(self, plan, first, stop, scores, timings):
+        """Add the margins of window rows ``first`` .. ``stop - 1`` to ``scores``, from
+        the features :meth:`score_rows` computed for the rows they cover."""
+        options = self.options
+        if first >= stop:
+            return
+        t1 = time.perf_counter()
+        band_scores = scores[first:stop]
+        step_px = plan.step_cells * options.pixels_per_cell
+        if options.use_hog:
+            cpb = options.cells_per_block
+            add_hog_scores_from_phase_cells(self._cells_buffer(plan),
+                                            plan.scaled_size[0] // options.pixels_per_cell,
+                                            (cpb, cpb), options.block_norm, self._hog_weights,
+                                            plan.step_cells, scores, window_rows=(first, stop))
+            t2 = time.perf_counter()
+            timings["blocks_score"] += t2 - t1
+            t1 = t2
+        if options.spatial_size or options.hist_bins:
+            tile, factor = self._colour_grid(plan)
+            tiles, box = self._colour_buffers(plan)
+            top, bottom = first * step_px, (stop - 1) * step_px + WINDOW
             if options.spatial_size:
-                add_spatial_scores(spatial, self._spatial_weights, step_px // factor, band_scores)
+                add_spatial_scores(box[top // factor:bottom // factor], self._spatial_weights,
+                                   step_px // factor, band_scores)
             if options.hist_bins:
-                add_tile_window_sums(tiles, WINDOW // tile, step_px // tile, band_scores)
-        timings["colour_score"] += time.perf_counter() - t1
+                add_tile_window_sums(tiles[top // tile:bottom // tile], WINDOW // tile,
+                                     step_px // tile, band_scores)
+            timings["colour_score"] += time.perf_counter() - t1
+
+    def _colour_grid(self, plan):
+        """``(tile, factor)``: the histogram tile side and the spatial box factor of a scale."""
+        options = self.options
+        tile = math.gcd(plan.step_cells * options.pixels_per_cell, WINDOW)
+        return tile, (WINDOW // options.spatial_size if options.spatial_size else 0)
+
+    def _colour_buffers(self, plan):
+        """The scale's histogram tile sums and spatial box means (reused arrays)."""
+        tile, factor = self._colour_grid(plan)
+        width = plan.scaled_size[0]
+        height = (plan.grid[0] - 1) * plan.step_cells * self.options.pixels_per_cell + WINDOW
+        tiles = self._buffer(plan, "tiles", (height // tile, width // tile) if
+                             self.options.hist_bins else (0, 0), np.float32)
+        box = self._buffer(plan, "box", (height // factor, width // factor, 3) if factor
+                           else (0, 0, 3), np.float32)
+        return tiles, box

@@ -454,7 +454,7 @@ def _colour_maps(path, image, lut, tile, factor, want_tiles, want_box, tiles, bo
     return path
 
 
-def colour_maps(image, lut=None, tile=8, factor=0):
+def colour_maps(image, lut=None, tile=8, factor=0, out=(None, None)):
     """Histogram-weight tile sums and the box-averaged image, in one pass.
 
     Parameters
@@ -467,6 +467,9 @@ def colour_maps(image, lut=None, tile=8, factor=0):
         Tile side of the sums.
     factor : int
         Box-averaging factor of the spatial image; 0 skips it.
+    out : tuple of ndarray or None
+        C-contiguous float32 arrays of the results' shapes to write the tile
+        sums and the box means into (``None``: new arrays).
 
     Returns
     -------
@@ -494,9 +497,18 @@ def colour_maps(image, lut=None, tile=8, factor=0):
     want_tiles = lut is not None
     want_box = factor > 0
     # Every element is written by the kernel: no need to zero them first.
-    tiles = np.empty((height // tile, width // tile) if want_tiles else (0, 0), np.float32)
-    box = np.empty((height // factor, width // factor, 3) if want_box else (0, 0, 3), np.float32)
+    tiles = _colour_out(out[0], (height // tile, width // tile) if want_tiles else (0, 0))
+    box = _colour_out(out[1], (height // factor, width // factor, 3) if want_box else (0, 0, 3))
     lut = np.zeros((3, 256), np.float32) if lut is None else np.ascontiguousarray(lut, np.float32)
     path = PATH_AVX512 if HAVE_AVX512BW else PATH_SCALAR
     _colour_maps(path, image, lut, int(tile), int(factor), want_tiles, want_box, tiles, box)
     return tiles, box
+
+
+def _colour_out(out, shape):
+    if out is None:
+        return np.empty(shape, np.float32)
+    if out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
+        raise ValueError(f"out arrays must be C-contiguous float32 of shape {shape}, "
+                         f"got {out.dtype} {out.shape}")
+    return out
