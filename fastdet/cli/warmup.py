@@ -1,4 +1,4 @@
-"""``fastdet warmup``: compile every kernel once, e.g. while building an image or starting a worker."""
+"""``fastdet warmup``: compile every kernel once (building an image, starting a worker)."""
 
 from __future__ import annotations
 

@@ -106,8 +106,8 @@ class Detector:
         the searched band's rows, then they take the frame's tasks
         (:meth:`~fastdet.detector.scoring.ScaleScorer.bands`: whole scales;
         the largest one's pixel rows cut in two, then its windows)
-        costliest first, as each finishes one.  OpenCV is set to the same count so the two do not
-        oversubscribe the cores.
+        costliest first, as each finishes one.  OpenCV is set to the same
+        count so the two do not oversubscribe the cores.
     preload : bool
         Load the kernels a detection needs in a background thread from
         now on (compiling them on first use, about half of them in a
@@ -213,7 +213,7 @@ class Detector:
         return plans
 
     def bands(self, frame_size):
-        """The frame's scoring tasks for this detector's threads (see :meth:`.ScaleScorer.bands`)."""
+        """The frame's scoring tasks for this detector's threads (:meth:`.ScaleScorer.bands`)."""
         bands = self._bands.get(frame_size)
         if bands is None:
             bands = self._bands[frame_size] = self.scorer.bands(self.plans(frame_size),

@@ -55,7 +55,7 @@ class Hits:
 
 
 def kernel_families(options):
-    """The kernel families (:data:`fastdet.kernels.warmup.FAMILIES`) detection with ``options`` runs."""
+    """The kernel families (``kernels.warmup.FAMILIES``) a detection with ``options`` runs."""
     families = ["resize", "heat", "label"]
     if options.color_space == "HLS":
         families.append("convert")

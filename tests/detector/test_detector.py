@@ -237,7 +237,8 @@ def test_two_thread_tasks_cut_the_largest_scale_into_whole_tiles(random_model):
     assert sorted(task.index for task in single) == list(range(len(plans)))
     assert {task.kind for task in single} == {"whole"}
     tasks = detector.scorer.bands(plans, 2)
-    largest = max(range(len(plans)), key=lambda i: plans[i].scaled_size[0] * plans[i].scaled_size[1])
+    largest = max(range(len(plans)),
+                  key=lambda i: plans[i].scaled_size[0] * plans[i].scaled_size[1])
     rows = sorted((task.first, task.stop) for task in tasks
                   if task.index == largest and task.kind == "rows")
     assert len(rows) == 2

@@ -53,11 +53,12 @@ def test_detection_needs_nothing_the_warmup_did_not_load(data_dir, threads):
 
 def test_split_families_balances_the_weights():
     names = list(warmup.FAMILIES)
-    first, second = warmup.split_families(names)
-    assert sorted(first + second) == sorted(names)
+    here, helper = warmup.split_families(names)
+    assert sorted(here + helper) == sorted(names)
     weight = lambda group: sum(warmup.COMPILE_WEIGHTS[name] for name in group)  # noqa: E731
     heaviest = max(warmup.COMPILE_WEIGHTS.values())
-    assert abs(weight(first) - weight(second)) <= heaviest
+    # The helper starts late by its start-up; the two groups end within one family.
+    assert abs(weight(here) - (weight(helper) + warmup.HELPER_START_SECONDS)) <= heaviest
 
 
 def test_unknown_family_is_refused():
