@@ -27,11 +27,11 @@ import time
 
 import numpy as np
 
-#: Seconds each family took to compile on the development machine (empty
-#: cache, one process, Numba's own helpers included); :func:`split_families`
-#: balances two processes with these weights.
-COMPILE_WEIGHTS = {"label": 4.2, "colour": 3.0, "score": 2.6, "resize": 1.6, "heat": 1.5,
-                   "split": 1.6, "hog": 1.1, "convert": 0.5, "track": 1.2, "hog_api": 0.8}
+#: CPU seconds each family took to compile on the development machine (empty
+#: cache, a process of its own, Numba's own helpers included);
+#: :func:`split_families` balances two processes with these weights.
+COMPILE_WEIGHTS = {"label": 4.4, "score": 2.3, "colour": 1.9, "heat": 1.8, "resize": 1.6,
+                   "split": 1.6, "hog": 1.2, "convert": 0.6, "track": 1.2, "hog_api": 0.8}
 
 
 def _frame_band(height, width):
