@@ -10,13 +10,16 @@
   :data:`WARM_RUNS` pairs.
 
 Each figure is a fresh process's wall clock as the parent sees it,
-interpreter start included, the way a user waits for it.  The command runs
-through the same entry point as the ``fastdet`` console script.
+interpreter start included, the way a user waits for it, and its CPU time
+(user + system, the helper compile process included), which other
+processes' load does not inflate.  The command runs through the same entry
+point as the ``fastdet`` console script.
 """
 
 from __future__ import annotations
 
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -43,17 +46,20 @@ def _image():
 
 
 def run_seconds(code, args=(), cache_dir=None):
-    """Wall seconds of ``python -c code args`` in a fresh process (raises if it fails)."""
+    """``(wall, cpu)`` seconds of ``python -c code args`` in a fresh process (raises if it fails)."""
     env = dict(os.environ)
     if cache_dir is not None:
         env["NUMBA_CACHE_DIR"] = str(cache_dir)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     completed = subprocess.run([sys.executable, "-c", code, *map(str, args)], env=env,
                                capture_output=True, text=True, timeout=900)
     seconds = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if completed.returncode != 0:
         raise RuntimeError(f"{code!r} failed: {completed.stderr.strip()[-500:]}")
-    return seconds
+    cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    return seconds, cpu
 
 
 def measure(cold_runs=COLD_RUNS, warm_runs=WARM_RUNS):
@@ -69,10 +75,12 @@ def measure(cold_runs=COLD_RUNS, warm_runs=WARM_RUNS):
         for _ in range(warm_runs):
             floor.append(run_seconds(_IMPORT_FLOOR, (), cache))
             warm.append(run_seconds(_FASTDET, ("detect", image), cache))
-    return {"cold": statistics.median(cold), "cold_runs": cold,
-            "warm": statistics.median(warm), "import_floor": statistics.median(floor),
-            "warm_above_floor": statistics.median(w - f for w, f in zip(warm, floor)),
-            "warm_runs": warm, "floor_runs": floor}
+    median = lambda pairs, k: statistics.median(pair[k] for pair in pairs)  # noqa: E731
+    above = lambda k: statistics.median(w[k] - f[k] for w, f in zip(warm, floor))  # noqa: E731
+    return {"cold": median(cold, 0), "cold_cpu": median(cold, 1),
+            "warm": median(warm, 0), "import_floor": median(floor, 0),
+            "warm_above_floor": above(0), "warm_cpu_above_floor": above(1),
+            "cold_runs": cold, "warm_runs": warm, "floor_runs": floor}
 
 
 class StartUp:
@@ -103,6 +111,14 @@ class StartUp:
     def track_warm_above_import_floor(self, figures):
         """Warm command minus the import floor, run in pairs (median difference)."""
         return figures["warm_above_floor"]
+
+    def track_cold_detect_cpu(self, figures):
+        """CPU seconds of the cold command, its helper compile process included (median)."""
+        return figures["cold_cpu"]
+
+    def track_warm_cpu_above_import_floor(self, figures):
+        """CPU seconds of the warm command minus the import floor's (median of pairs)."""
+        return figures["warm_cpu_above_floor"]
 
 
 for _name in dir(StartUp):
