@@ -22,9 +22,29 @@ from .errors import ConfigError, FastdetError, InputError, ModelError
 from .training.train import train
 from .video.config import TrackConfig, load_track_config
 from .video.pipeline import VideoPipeline
-from .video.run import process_video
-from .video.sink import VideoSink
-from .video.source import VideoSource
+
+#: Names imported on first use: PyAV (and, for batch runs, Dask) load only
+#: when video I/O is used, so ``import fastdet`` stays a detector's import.
+_LAZY = {
+    "VideoSource": ("fastdet.video.source", "VideoSource"),
+    "VideoSink": ("fastdet.video.sink", "VideoSink"),
+    "process_video": ("fastdet.video.run", "process_video"),
+}
+
+
+def __getattr__(name):
+    if name not in _LAZY:
+        raise AttributeError(f"module 'fastdet' has no attribute {name!r}")
+    import importlib
+
+    module, attribute = _LAZY[name]
+    value = getattr(importlib.import_module(module), attribute)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
 
 __all__ = [
     "ConfigError", "Detections", "Detector", "DetectorConfig", "FastdetError", "FeatureOptions",

@@ -161,3 +161,31 @@ def format_stages(results):
         lines.append(f"| {result.name} | " + " | ".join(f"{split[c]:.2f}" for c in columns)
                      + " |")
     return "\n".join(lines)
+
+
+def format_threads(results):
+    """Markdown table: how each fastdet thread spent the frame, and the speed-up over 1 thread.
+
+    A thread's busy time is its colour conversion and scoring; the rest of
+    the frame it waited for the others or (the calling thread) found the
+    boxes.  Idle share: ``1 - sum(busy) / (threads * total)``.  CPU time is
+    the busy time less what other processes took from the thread.
+    """
+    rows = [r for r in results if r.thread_busy and r.stages]
+    if not rows:
+        return ""
+    single = next((r for r in rows if len(r.thread_busy) == 1), None)
+    lines = ["| pipeline | total ms/frame | busy ms per thread | CPU ms per thread | idle share "
+             "| x faster than 1 thread (median) | idle-core estimate ms (from CPU time) "
+             "| x faster than 1 thread (estimate) |", "|---|---:|---|---|---:|---:|---:|---:|"]
+    for result in rows:
+        total = result.stages.get("total", 0.0)
+        busy = " / ".join(f"{ms:.2f}" for ms in result.thread_busy)
+        cpu = " / ".join(f"{ms:.2f}" for ms in result.thread_cpu)
+        idle = 1 - sum(result.thread_busy) / (len(result.thread_busy) * total) if total else 0.0
+        ratio = single.median_ms / result.median_ms if single else math.nan
+        estimate = (single.idle_estimate_ms / result.idle_estimate_ms if single
+                    else math.nan)
+        lines.append(f"| {result.name} | {total:.2f} | {busy} | {cpu} | {idle:.0%} "
+                     f"| {_ratio(ratio)} | {result.idle_estimate_ms:.2f} | {_ratio(estimate)} |")
+    return "\n".join(lines)

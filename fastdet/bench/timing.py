@@ -38,6 +38,16 @@ class PipelineResult:
     windows_per_frame : float
     stages : dict
         fastdet only: mean milliseconds per stage (``STAGES``) and ``total``.
+    thread_busy : list of float
+        fastdet only: mean milliseconds each thread worked per frame (the
+        calling thread first; see ``Detector.thread_busy``).
+    thread_cpu : list of float
+        fastdet only: mean CPU milliseconds of that work per thread.
+    idle_estimate_ms : float
+        fastdet only: the median over calls of the calling thread's CPU
+        outside its share plus the threads' work CPU divided by their
+        number -- the latency on idle cores, which other processes' load
+        does not inflate (see :func:`time_fastdet`).
     """
 
     name: str
@@ -45,6 +55,9 @@ class PipelineResult:
     frame_indices: list
     windows_per_frame: float
     stages: dict = field(default_factory=dict)
+    thread_busy: list = field(default_factory=list)
+    thread_cpu: list = field(default_factory=list)
+    idle_estimate_ms: float = math.nan
 
     @property
     def median_ms(self):
@@ -114,26 +127,40 @@ def time_fastdet(detector, frames, repeat=3, name="fastdet"):
     """Per-frame latency of a Detector: the median of ``repeat`` calls per frame.
 
     The first frame is detected once untimed, so compilation, cache loading
-    and buffer allocation are not counted.
+    and buffer allocation are not counted.  Besides wall-clock time, each
+    call's CPU time is taken: the calling thread's (``time.thread_time``)
+    outside its share of the frame is the serial part, and the serial part
+    plus the threads' work divided among them estimates the latency on
+    idle cores (it assumes the threads, which take tasks as they finish
+    them, would split the work evenly).
     """
     detector(frames[0])
     per_frame = []
     stage_totals = dict.fromkeys(STAGES, 0.0)
+    busy_totals = np.zeros(len(detector.thread_busy))
+    cpu_totals = np.zeros(len(detector.thread_cpu))
+    estimates = []
     windows = 0
     for frame in frames:
         samples = []
         for _ in range(repeat):
+            cpu = time.thread_time()
             start = time.perf_counter()
             detector(frame)
             samples.append(time.perf_counter() - start)
+            serial = time.thread_time() - cpu - detector.thread_cpu[0]
+            estimates.append(serial + sum(detector.thread_cpu) / detector.threads)
             for stage in STAGES:
                 stage_totals[stage] += detector.timings[stage]
+            busy_totals += detector.thread_busy
+            cpu_totals += detector.thread_cpu
         per_frame.append(statistics.median(samples))
         windows += detector.last_windows_scored
     runs = len(frames) * repeat
     stages = {stage: total / runs * 1e3 for stage, total in stage_totals.items()}
     return PipelineResult(name, per_frame, list(range(len(frames))), windows / len(frames),
-                          stages)
+                          stages, list(busy_totals / runs * 1e3), list(cpu_totals / runs * 1e3),
+                          statistics.median(estimates) * 1e3)
 
 
 def fastdet_name(threads):

@@ -30,6 +30,7 @@ from .run import add_run_parser
 from .train import add_train_parser
 from .tune import add_tune_parser
 from .viz import add_viz_parser
+from .warmup import add_warmup_parser
 
 EXIT_ERROR = 2
 EXIT_INTERNAL = 70
@@ -60,7 +61,8 @@ def build_parser():
     _add_global_options(parser, False)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add_verb in (add_detect_parser, add_eval_parser, add_train_parser, add_mine_parser,
-                     add_tune_parser, add_run_parser, add_viz_parser, add_bench_parser):
+                     add_tune_parser, add_run_parser, add_viz_parser, add_bench_parser,
+                     add_warmup_parser):
         add_verb(sub)
     _add_to_every_verb(parser)
     return parser

@@ -80,7 +80,7 @@ def cmd_bench(args):
     from ..bench.hog_compare import format_hog, hog_vs_skimage
     from ..bench.scaling import SIZES, format_scaling, scaling_study
     from ..bench.scaling_plot import plot_scaling
-    from ..bench.latency import format_stages, format_table, run_benchmark
+    from ..bench.latency import format_stages, format_table, format_threads, run_benchmark
     from ..bench.timing import read_frames
     from ..detector.config import load_config
     from ..detector.model import load_model
@@ -130,6 +130,8 @@ def cmd_bench(args):
         print(f"note: {note}")
     print("\n## fastdet stage split\n")
     print(format_stages(run.results))
+    print("\n## fastdet threads (busy: colour conversion and scoring; ratio of medians)\n")
+    print(format_threads(run.results))
 
     print("\n## fastdet.hog vs skimage.feature.hog\n")
     hog_sizes = SIZES if args.hog else (frame_size,)

@@ -120,8 +120,8 @@ class BoxFinder:
                 mask = np.ascontiguousarray(labels[y1:y2, x1:x2] == k + 1)
                 # The same levels the kernel's probe used (one definition).
                 levels = split_levels(np.float32(peaks[k]), float(cfg.threshold), _SPLIT_LEVELS)
-                parts = split_component(np.ascontiguousarray(region), mask, levels, min_size,
-                                        min_size, cfg.connectivity)
+                parts = split_component(np.ascontiguousarray(region), mask.view(np.uint8), levels,
+                                        min_size, min_size, cfg.connectivity)
                 # A seed that won no pixel yields an empty box; it is no car.
                 parts = parts[(parts[:, 2] > parts[:, 0]) & (parts[:, 3] > parts[:, 1])]
             if len(parts) < 2:
@@ -134,10 +134,39 @@ class BoxFinder:
         return np.concatenate(out_boxes), np.concatenate(out_peaks)
 
     def finish_boxes(self, boxes, peaks, frame_size):
-        """Shape-correct and filter blob boxes into :class:`Detections`."""
-        boxes = self.reshape_boxes(boxes, frame_size)
-        keep = self.box_filter(boxes, frame_size)
-        return Detections(boxes[keep], peaks[keep])
+        """Shape-correct and filter blob boxes into :class:`Detections`.
+
+        The same arithmetic as :meth:`reshape_boxes` and :meth:`box_filter`
+        (float64, round half to even), in plain Python: a frame has a few
+        boxes, for which some 40 NumPy calls cost more than the loop
+        (65 -> 15 us, every frame).
+        """
+        cfg = self.config.boxes
+        width, height = frame_size
+        ref_w, ref_h = self.config.search.reference_size
+        kx, ky = width / ref_w, height / ref_h
+        min_side = cfg.min_size * math.sqrt(kx * ky)
+        horizon = cfg.horizon_y * ky
+        shaped = not (cfg.width_scale == 1 and cfg.height_scale == 1 and cfg.center_dy == 0)
+        kept, keep = [], []
+        for index, (x1, y1, x2, y2) in enumerate(boxes.tolist()):
+            if shaped:
+                cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
+                half_w = (x2 - x1) * cfg.width_scale / 2
+                box_h = y2 - y1
+                half_h = box_h * cfg.height_scale / 2
+                cy = cy + cfg.center_dy * box_h
+                x1 = min(max(round(cx - half_w), 0), width - 1)
+                y1 = min(max(round(cy - half_h), 0), height - 1)
+                x2 = min(max(round(cx + half_w), x1 + 1), width)
+                y2 = min(max(round(cy + half_h), y1 + 1), height)
+            box_w, box_h = x2 - x1, y2 - y1
+            aspect = box_w / max(box_h, 1)
+            if (box_w >= min_side and box_h >= min_side and cfg.min_aspect <= aspect
+                    <= cfg.max_aspect and y2 > horizon):
+                kept.append((x1, y1, x2, y2))
+                keep.append(index)
+        return Detections(np.array(kept, dtype=np.int32).reshape(-1, 4), peaks[keep])
 
     def reshape_boxes(self, boxes, frame_size):
         """Apply the ``[boxes]`` shape correction about each box centre, clipped to the frame."""

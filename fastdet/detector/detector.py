@@ -12,18 +12,80 @@ from __future__ import annotations
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import cv2
 import numba
 import numpy as np
 
 from ..errors import InputError
+from ..kernels.warmup import warm
 from .boxes import BoxFinder
 from .config import DetectorConfig
 from .frames import as_bgr_frame
 from .model import Model, load_model
 from .plan import plan_scales
-from .scoring import STAGES, Hits, ScaleScorer
+from .scoring import STAGES, Hits, ScaleScorer, kernel_families
+
+
+@dataclass(frozen=True)
+class _Windows:
+    """All windows of a frame size: boxes, the plan each is from, where each plan starts."""
+
+    boxes: np.ndarray        # int32 (N, 4)
+    scale_index: np.ndarray  # int64 (N,)
+    starts: list
+
+
+class _Aborted(Exception):
+    """Another thread of the frame failed (its own error is raised by the caller)."""
+
+
+class _TaskQueue:
+    """A frame's tasks, handed out in order to whichever thread asks; a scale's
+    ``"windows"`` task waits until all of its ``"rows"`` tasks are done."""
+
+    def __init__(self, tasks):
+        self._tasks = iter(tasks)  # next() on a tuple iterator is atomic under the GIL
+        self._lock = threading.Lock()
+        self._pending = {}
+        for task in tasks:
+            if task.kind == "rows":
+                self._pending[task.index] = self._pending.get(task.index, 0) + 1
+        self._done = {index: threading.Event() for index in self._pending}
+        self._aborted = False
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        return next(self._tasks)
+
+    def rows_done(self, index):
+        with self._lock:
+            self._pending[index] -= 1
+            if self._pending[index] == 0:
+                self._done[index].set()
+
+    def wait_for_rows(self, index):
+        if index in self._done:
+            self._done[index].wait()
+        if self._aborted:
+            raise _Aborted
+
+    def abort(self):
+        self._aborted = True
+        for event in self._done.values():
+            event.set()
+
+
+def _load_kernels(families):
+    """The preload thread: a failure here only means each kernel loads (and
+    reports any error) at its first call instead."""
+    try:
+        warm(families)
+    except Exception:  # noqa: BLE001 - see the docstring
+        pass
 
 
 class Detector:
@@ -39,11 +101,18 @@ class Detector:
     threads : int, optional
         Threads per frame.  ``None`` keeps Numba's setting
         (``NUMBA_NUM_THREADS``, all cores by default); 1 runs everything on
-        the calling thread.  With more, the search scales of a frame are
-        scored concurrently by a pool of that many threads (the kernels
-        release the GIL), each scale on one thread: a scale's kernels are
-        too short to split well.  OpenCV, which converts the frame's colours,
-        is set to the same count so the two do not oversubscribe the cores.
+        the calling thread.  With more, the calling thread and a pool share
+        each frame (the kernels release the GIL): each converts a chunk of
+        the searched band's rows, then they take the frame's tasks
+        (:meth:`~fastdet.detector.scoring.ScaleScorer.bands`: whole scales;
+        the largest one's pixel rows cut in two, then its windows)
+        costliest first, as each finishes one.  OpenCV is set to the same
+        count so the two do not oversubscribe the cores.
+    preload : bool
+        Load the kernels a detection needs in a background thread from
+        now on (compiling them on first use, about half of them in a
+        second process; see :func:`fastdet.kernels.warmup.warm`); the first
+        detection waits for it.  False: each kernel loads at its first call.
 
     Attributes
     ----------
@@ -52,9 +121,15 @@ class Detector:
     box_finder : BoxFinder
         Turns hits into heat and heat into boxes.
     timings : dict
-        Seconds spent per stage (see ``STAGES``) in the last call to finish;
-        with several threads, the scales' stage times are summed over
-        threads.
+        Seconds spent per stage (see ``STAGES``) in the last call; with
+        several threads, the scales' stage times are summed over threads.
+    thread_busy : list of float
+        Seconds each thread worked on the last frame's conversion and
+        scoring (the calling thread first); the rest of ``timings["total"]``
+        it waited, or (the calling thread) found boxes.
+    thread_cpu : list of float
+        CPU seconds each thread used for that work (``time.thread_time``):
+        below ``thread_busy`` when other processes took the cores.
 
     Notes
     -----
@@ -62,10 +137,11 @@ class Detector:
     ``cv2.VideoCapture`` return them); grey and BGRA frames are converted.
     A frame smaller than the smallest window gives no boxes.
 
-    A detector is thread-safe: several threads may call one detector at
-    once and get the detections serial calls give (work arrays are kept per
-    thread, timings per call).  Each calling thread then holds its own work
-    arrays, a few megabytes per frame size.
+    One detector may be shared between threads: its detections (calls,
+    :meth:`hits`, :meth:`heatmap`) run one at a time, each already using
+    ``threads`` cores and the detector's reused work arrays, and give what
+    serial calls give.  For detections running side by side, give each
+    thread its own detector.
 
     Examples
     --------
@@ -74,7 +150,7 @@ class Detector:
     >>> detections.xyxy, detections.score          # doctest: +SKIP
     """
 
-    def __init__(self, model=None, config=None, threads=None):
+    def __init__(self, model=None, config=None, threads=None, preload=True):
         if not isinstance(model, Model):
             model = load_model(model)
         self.model = model
@@ -86,11 +162,24 @@ class Detector:
             cv2.setNumThreads(threads)
         self.threads = numba.get_num_threads() if threads is None else threads
         self._pool = None
-        self._timings_lock = threading.Lock()
+        # One detection at a time per detector: the work arrays are reused.
+        self._detecting = threading.RLock()
         self.scorer = ScaleScorer(model)
         self.box_finder = BoxFinder(config or DetectorConfig())
         self._plans = {}
+        self._bands = {}
+        self._all_windows = {}
         self.timings = dict.fromkeys(STAGES, 0.0)
+        self.thread_busy = [0.0] * self.threads
+        self.thread_cpu = [0.0] * self.threads
+        self._loader = None
+        if preload:
+            # Load (or compile) the kernels while the caller reads its first
+            # frame; the first detection waits for it (see _kernels_loaded).
+            self._loader = threading.Thread(target=_load_kernels,
+                                            args=(kernel_families(model.options),),
+                                            name="fastdet-kernels", daemon=True)
+            self._loader.start()
 
     @property
     def config(self):
@@ -101,16 +190,25 @@ class Detector:
     def config(self, config):
         self.box_finder.config = config
         self._plans = {}
+        self._bands = {}
+        self._all_windows = {}
 
     def __del__(self):
         pool = getattr(self, "_pool", None)
         if pool is not None:
             pool.shutdown(wait=False)
 
-    def _scale_pool(self):
-        """The thread pool that scores scales concurrently (threads > 1)."""
+    def _kernels_loaded(self):
+        """Wait for the kernel loading started by ``__init__`` (once)."""
+        loader = self._loader
+        if loader is not None:
+            loader.join()
+            self._loader = None
+
+    def _worker_pool(self):
+        """The threads that score bands beside the calling thread (threads > 1)."""
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=self.threads,
+            self._pool = ThreadPoolExecutor(max_workers=self.threads - 1,
                                             thread_name_prefix="fastdet-scale")
         return self._pool
 
@@ -122,6 +220,14 @@ class Detector:
             plans = self._plans.setdefault(
                 frame_size, plan_scales(self.config, self.model.options, frame_size))
         return plans
+
+    def bands(self, frame_size):
+        """The frame's scoring tasks for this detector's threads (:meth:`.ScaleScorer.bands`)."""
+        bands = self._bands.get(frame_size)
+        if bands is None:
+            bands = self._bands[frame_size] = self.scorer.bands(self.plans(frame_size),
+                                                                self.threads)
+        return bands
 
     # -- stage 1: windows ---------------------------------------------------
     def prepare(self, frame):
@@ -160,46 +266,111 @@ class Detector:
         -------
         Hits
         """
-        timings = dict.fromkeys(STAGES, 0.0)
-        hits = self._hits(as_bgr_frame(frame), timings)
-        self.timings = timings
-        return hits
+        frame = as_bgr_frame(frame)
+        with self._detecting:
+            return self._hits(frame)
 
-    def _hits(self, frame, timings):
-        """:meth:`hits` of a checked frame, its stage times added to ``timings``."""
-        threshold = self.config.search.decision_threshold
-        boxes, scores, scales = [], [], []
-        scored = 0
-        t0 = time.perf_counter()
-        prepared = self.prepare(frame)
-        timings["resize_convert"] += time.perf_counter() - t0
-        plans = self.plans((frame.shape[1], frame.shape[0]))
-        if self.threads > 1 and len(plans) > 1:
-            grids = list(self._scale_pool().map(
-                lambda plan: self._score_scale_timed(prepared, plan, timings), plans))
+    def _hits(self, frame):
+        """:meth:`hits` of a checked frame, with the detection lock held."""
+        self._kernels_loaded()
+        for stage in STAGES:
+            self.timings[stage] = 0.0
+        size = (frame.shape[1], frame.shape[0])
+        plans = self.plans(size)
+        bands = self.bands(size)
+        windows = self._windows(size)
+        # Every scale's grid is a view of one score array: one threshold and
+        # one gather find the hits of all of them.
+        scores = np.full(len(windows.scale_index), self.model.bias, dtype=np.float32)
+        grids = [scores[start:start + plan.n_windows].reshape(plan.grid)
+                 for plan, start in zip(plans, windows.starts)]
+        prepared = self.scorer.frame_buffers(plans)
+        workers = min(self.threads, max(len(bands), 1))
+        if workers > 1:
+            self._score_concurrently(frame, prepared, plans, bands, grids, workers)
         else:
-            grids = [self.score_scale(prepared, plan, timings) for plan in plans]
-        for index, (plan, grid) in enumerate(zip(plans, grids)):
-            grid = grid.ravel()
-            scored += grid.size
-            hit = np.flatnonzero(grid > threshold)
-            if hit.size:
-                boxes.append(plan.boxes[hit])
-                scores.append(grid[hit])
-                scales.append(np.full(hit.size, index, dtype=np.int64))
-        if not boxes:
-            return Hits(np.zeros((0, 4), np.int32), np.zeros(0, np.float32),
-                        np.zeros(0, np.int64), scored)
-        return Hits(np.concatenate(boxes), np.concatenate(scores), np.concatenate(scales), scored)
+            timings = dict.fromkeys(STAGES, 0.0)
+            share = self._score_share(frame, prepared, plans, _TaskQueue(bands), grids, timings,
+                                      (0, 1))
+            self._record_shares([share])
+            self._add_timings(timings)
+        hit = np.flatnonzero(scores > self.config.search.decision_threshold)
+        return Hits(windows.boxes[hit], scores[hit], windows.scale_index[hit], len(scores))
 
-    def _score_scale_timed(self, prepared, plan, call_timings):
-        """:meth:`score_scale` on a pool thread, its stage times added to the call's."""
-        timings = dict.fromkeys(STAGES, 0.0)
-        scores = self.score_scale(prepared, plan, timings)
-        with self._timings_lock:
-            for stage, seconds in timings.items():
-                call_timings[stage] += seconds
-        return scores
+    def _windows(self, frame_size):
+        """Every window of a frame size's plans, in plan order (cached)."""
+        windows = self._all_windows.get(frame_size)
+        if windows is None:
+            plans = self.plans(frame_size)
+            counts = [plan.n_windows for plan in plans]
+            windows = self._all_windows[frame_size] = _Windows(
+                np.concatenate([plan.boxes for plan in plans]) if plans
+                else np.zeros((0, 4), np.int32),
+                np.repeat(np.arange(len(plans), dtype=np.int64), counts),
+                np.cumsum([0] + counts[:-1]).tolist())
+        return windows
+
+    def _score_share(self, frame, prepared, plans, tasks, grids, timings, part, converted=None):
+        """One thread's share of a frame: its part of the colour conversion, then
+        bands taken from ``tasks`` until none is left.  Returns the seconds it
+        worked and the CPU seconds it used.
+
+        ``part``: ``(k, n)``, this thread converts the k-th of n row chunks;
+        ``converted``: a barrier all chunks pass before any band is scored.
+        """
+        try:
+            cpu = time.thread_time()
+            start = time.perf_counter()
+            if prepared.converted is not None:
+                rows = prepared.converted.shape[0]
+                k, n = part
+                self.scorer.convert_rows(frame, prepared, k * rows // n, (k + 1) * rows // n)
+            busy = time.perf_counter() - start
+            timings["resize_convert"] += busy
+            if converted is not None:
+                converted.wait()
+            # Tasks are taken in order, costliest first, by whichever thread is free.
+            for task in tasks:
+                if task.kind == "windows":
+                    tasks.wait_for_rows(task.index)
+                begin = time.perf_counter()
+                self.scorer.run(task, prepared, plans, grids, timings)
+                busy += time.perf_counter() - begin
+                if task.kind == "rows":
+                    tasks.rows_done(task.index)
+            return busy, time.thread_time() - cpu
+        except BaseException:
+            # The other threads stop waiting for this one.
+            tasks.abort()
+            if converted is not None:
+                converted.abort()
+            raise
+
+    def _score_concurrently(self, frame, prepared, plans, bands, grids, workers):
+        """Score the bands of a frame on ``workers`` threads, the calling one included."""
+        tasks = _TaskQueue(bands)
+        converted = threading.Barrier(workers)
+        shares = [dict.fromkeys(STAGES, 0.0) for _ in range(workers)]
+        futures = [self._worker_pool().submit(self._score_share, frame, prepared, plans, tasks,
+                                              grids, shares[k], (k, workers), converted)
+                   for k in range(1, workers)]
+        try:
+            mine = self._score_share(frame, prepared, plans, tasks, grids, shares[0],
+                                     (0, workers), converted)
+        except (threading.BrokenBarrierError, _Aborted):
+            mine = (0.0, 0.0)  # a worker failed: future.result() raises its error
+        self._record_shares([mine] + [future.result() for future in futures])
+        for timings in shares:
+            self._add_timings(timings)
+
+    def _record_shares(self, shares):
+        idle = [0.0] * (self.threads - len(shares))
+        self.thread_busy = [busy for busy, _ in shares] + idle
+        self.thread_cpu = [cpu for _, cpu in shares] + idle
+
+    def _add_timings(self, timings):
+        for stage, seconds in timings.items():
+            self.timings[stage] += seconds
 
     # -- stage 2: heat and boxes ----------------------------------------------
     def heat_region(self, hits, frame_size):
@@ -263,16 +434,15 @@ class Detector:
         start = time.perf_counter()
         frame = as_bgr_frame(frame)
         size = (frame.shape[1], frame.shape[0])
-        timings = dict.fromkeys(STAGES, 0.0)
-        hits = self._hits(frame, timings)
-        t0 = time.perf_counter()
-        heat, origin = self.heat_region(hits, size)
-        t1 = time.perf_counter()
-        detections = self.boxes_from_heat(heat, origin, size)
-        end = time.perf_counter()
-        timings["heat"] = t1 - t0
-        timings["label"] = end - t1
-        timings["total"] = end - start
-        self.timings = timings
-        self.last_windows_scored = hits.windows_scored
+        with self._detecting:
+            hits = self._hits(frame)
+            t0 = time.perf_counter()
+            heat, origin = self.heat_region(hits, size)
+            t1 = time.perf_counter()
+            detections = self.boxes_from_heat(heat, origin, size)
+            end = time.perf_counter()
+            self.timings["heat"] = t1 - t0
+            self.timings["label"] = end - t1
+            self.timings["total"] = end - start
+            self.last_windows_scored = hits.windows_scored
         return detections

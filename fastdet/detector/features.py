@@ -210,22 +210,25 @@ class FeatureLayout:
         return hog, spatial, hist
 
 
-def convert_color(image_bgr, color_space):
+def convert_color(image_bgr, color_space, out=None):
     """Convert a BGR uint8 image to ``color_space`` (uint8, 3 channels).
 
     HLS images whose width is a multiple of 8 (the detector's 1280-pixel band,
     64-pixel training crops) take :func:`fastdet.kernels.convert.bgr_to_hls`,
     bit-identical to OpenCV there and about twice as fast; everything else
-    goes to ``cv2.cvtColor``.
+    goes to ``cv2.cvtColor``.  ``out``: a C-contiguous uint8 array of the
+    image's shape to write into.
     """
     if (color_space == "HLS" and image_bgr.dtype == np.uint8 and image_bgr.ndim == 3
             and image_bgr.shape[2] == 3 and image_bgr.shape[1] % 8 == 0):
-        return bgr_to_hls(image_bgr)
-    return cv2.cvtColor(image_bgr, COLOR_CODES[color_space])
+        return bgr_to_hls(image_bgr, out)
+    return cv2.cvtColor(image_bgr, COLOR_CODES[color_space], dst=out)
 
 
-def color_planes(image_bgr, options):
+def color_planes(image_bgr, options, out=(None, None)):
     """The images every feature group is computed from.
+
+    ``out``: arrays to write ``converted`` and ``grey`` into (``None``: new).
 
     Returns
     -------
@@ -234,8 +237,10 @@ def color_planes(image_bgr, options):
     grey : ndarray of uint8, shape (H, W) or None
         The grey image, when the HOG is computed on grey.
     """
-    converted = convert_color(image_bgr, options.color_space)
-    grey = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY) if options.hog_channel == "gray" else None
+    converted = convert_color(image_bgr, options.color_space, out[0])
+    grey = None
+    if options.hog_channel == "gray":
+        grey = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY, dst=out[1])
     return converted, grey
 
 

@@ -11,7 +11,6 @@ features' part of the score (:mod:`fastdet.kernels.colour`).
 from __future__ import annotations
 
 import math
-import threading
 import time
 from dataclasses import dataclass
 
@@ -55,6 +54,40 @@ class Hits:
     windows_scored: int
 
 
+def kernel_families(options):
+    """The kernel families (``kernels.warmup.FAMILIES``) a detection with ``options`` runs."""
+    families = ["resize", "heat", "label"]
+    if options.color_space == "HLS":
+        families.append("convert")
+    if options.use_hog and options.hog_channel == "all" and (
+            options.pixels_per_cell, options.orientations, options.cells_per_block,
+            options.block_norm) == (8, 9, 2, "L2-Hys"):
+        # The warm-up's shapes; other settings compile at their first frame.
+        families += ["hog", "score"]
+    if options.spatial_size or options.hist_bins:
+        families.append("colour")
+    return tuple(families)
+
+
+@dataclass(frozen=True)
+class ScaleBand:
+    """One task of a frame's scoring, on the scale plan at ``index``.
+
+    ``kind`` is ``"whole"`` (window rows ``first`` .. ``stop - 1``: their
+    pixels' features, then their margins), ``"rows"`` (the features of
+    scaled pixel rows ``first`` .. ``stop - 1`` only) or ``"windows"`` (the
+    margins of window rows ``first`` .. ``stop - 1`` from features that the
+    plan's ``"rows"`` tasks computed: it runs after them).  ``pixels``: the
+    resized pixels it computes, its estimated cost.
+    """
+
+    index: int
+    kind: str
+    first: int
+    stop: int
+    pixels: int
+
+
 class ScaleScorer:
     """Scores the windows of one scale plan at a time, for one model.
 
@@ -64,9 +97,9 @@ class ScaleScorer:
 
     Notes
     -----
-    Work arrays are kept per thread and plan object and reused from frame to
-    frame, so any number of threads may score with one scorer at once, the
-    same plan included.
+    Work arrays are kept per plan object and reused from frame to frame, so
+    one scorer may score different plans concurrently (one thread per plan)
+    but not the same plan twice at once.
     """
 
     def __init__(self, model):
@@ -81,45 +114,40 @@ class ScaleScorer:
             bins = histogram_bin_lut(options.hist_bins)
             self._hist_lut = np.ascontiguousarray(hist_w[:, bins], dtype=np.float32)
         self._hog_channels = model.layout.hog_channels
-        self._local = threading.local()
+        self._workspace = {}
 
     def _buffer(self, plan, kind, shape, dtype):
         """A scale's work array, reused from frame to frame.
 
         Fresh multi-megabyte arrays every frame would cost page faults;
         callers get the array back filled, so the reuse is invisible.  Each
-        thread has its own arrays per plan object, so scales scored
-        concurrently (by the detector's pool, or by callers sharing one
-        detector between threads) never share one; the plan is kept with
-        them so that a recycled ``id`` of a discarded plan is never mistaken
-        for a live one.
+        plan object has its own arrays, so scales scored concurrently never
+        share one (tasks of one scale write disjoint rows of them); the plan
+        is kept with them so that a recycled ``id`` of a discarded plan is
+        never mistaken for a live one.
         """
-        workspace = getattr(self._local, "workspace", None)
-        if workspace is None:
-            workspace = self._local.workspace = {}
         key = (kind, id(plan))
-        entry = workspace.get(key)
+        entry = self._workspace.get(key)
         if entry is None or entry[0] is not plan:
-            if len(workspace) > _MAX_BUFFERS:
+            if len(self._workspace) > _MAX_BUFFERS:
                 # Plans made outside Detector.plans() (e.g. by callers of score_scale).
-                workspace.clear()
-            entry = workspace[key] = (plan, np.empty(shape, dtype))
+                self._workspace.clear()
+            entry = self._workspace[key] = (plan, np.empty(shape, dtype))
         return entry[1]
 
-    def _resized_buffer(self, plan, channels):
-        """The uint8 array a scale's region is resized into."""
-        width, height = plan.scaled_size
-        return self._buffer(plan, ("resized", channels), (height, width, channels), np.uint8)
-
-    def scaled_region(self, region, plan, channels):
+    def scaled_region(self, region, plan, channels, rows=None):
         """A scale's region resized to ``plan.scaled_size``; at scale 1, the
-        region itself when its rows are contiguous (a full-width region)."""
+        region itself when its rows are contiguous (a full-width region).
+
+        ``rows``: only these rows of the result are computed (see
+        :func:`~fastdet.kernels.resize.resize_linear`).
+        """
         width, height = plan.scaled_size
         if region.shape[:2] == (height, width) and region.flags.c_contiguous:
             return region
         # Bit-identical to cv2.resize(..., INTER_LINEAR), in about half its time.
-        return resize_linear(region, plan.scaled_size,
-                             out=self._resized_buffer(plan, channels))
+        out = self._buffer(plan, ("resized", channels), (height, width, channels), np.uint8)
+        return resize_linear(region, plan.scaled_size, out=out, rows=rows)
 
     def _cells_buffer(self, plan):
         """The phase-layout cell array of a scale."""
@@ -137,6 +165,7 @@ class ScaleScorer:
         cpb = self.options.cells_per_block
         return phase_scoring_pad(self._cell_grid(plan)[1], plan.step_cells, (cpb, cpb))
 
+    # -- the colour-converted band ----------------------------------------------
     def prepare(self, frame, plans):
         """Colour-convert the part of a frame any of ``plans`` searches, once.
 
@@ -151,6 +180,31 @@ class ScaleScorer:
         converted, grey = color_planes(frame[y0:y1, x0:x1], self.options)
         return PreparedFrame(converted, grey, (x0, y0))
 
+    def frame_buffers(self, plans):
+        """A :class:`PreparedFrame` of reused arrays, to be filled by :meth:`convert_rows`."""
+        band = search_band(plans)
+        if band is None:
+            return PreparedFrame(None, None, (0, 0))
+        x0, y0, x1, y1 = band
+        shape = (y1 - y0, x1 - x0)
+        key = ("frame", shape)
+        arrays = self._workspace.get(key)
+        if arrays is None:
+            grey = np.empty(shape, np.uint8) if self.options.hog_channel == "gray" else None
+            arrays = self._workspace[key] = (np.empty(shape + (3,), np.uint8), grey)
+        return PreparedFrame(arrays[0], arrays[1], (x0, y0))
+
+    def convert_rows(self, frame, prepared, first, stop):
+        """Colour-convert rows ``first`` .. ``stop - 1`` of the band into ``prepared``."""
+        if prepared.converted is None or first >= stop:
+            return
+        x0, y0 = prepared.origin
+        width = prepared.converted.shape[1]
+        grey = prepared.grey[first:stop] if prepared.grey is not None else None
+        color_planes(frame[y0 + first:y0 + stop, x0:x0 + width], self.options,
+                     out=(prepared.converted[first:stop], grey))
+
+    # -- scoring ------------------------------------------------------------------
     def score_scale(self, prepared, plan, timings):
         """SVM margins of every window of one scale, shape ``plan.grid``.
 
@@ -163,42 +217,162 @@ class ScaleScorer:
         timings : dict
             Stage seconds (keys of :data:`STAGES`) are added here.
         """
+        scores = np.full(plan.grid, self.model.bias, dtype=np.float32)
+        self.score_band(prepared, plan, 0, plan.grid[0], scores, timings)
+        return scores
+
+    def bands(self, plans, threads):
+        """A frame's scoring tasks for ``threads`` threads, costliest first.
+
+        With one thread, one ``"whole"`` task per scale.  With more, a scale
+        costing more than ``1 / (2 * threads)`` of the frame's resized pixels
+        (the 48-px scale of the default search: 45 % of them) is cut into
+        ``"rows"`` tasks of whole colour tiles, which threads compute at the
+        same time, and one ``"windows"`` task scoring all its windows after
+        them.  The threads take the next task as they finish one.
+        """
+        ppc = self.options.pixels_per_cell
+        used = [((plan.grid[0] - 1) * plan.step_cells * ppc + WINDOW) * plan.scaled_size[0]
+                for plan in plans]
+        total = sum(used)
+        tasks = []
+        for index, plan in enumerate(plans):
+            count = 1
+            if threads > 1 and total:
+                count = math.ceil(used[index] * 2 * threads / total)
+            height = used[index] // plan.scaled_size[0]
+            align = self._row_alignment(plan)
+            cuts = sorted({round(height * part / count / align) * align
+                           for part in range(1, count)} - {0, height})
+            if not cuts:
+                tasks.append(ScaleBand(index, "whole", 0, plan.grid[0], used[index]))
+                continue
+            for top, bottom in zip([0] + cuts, cuts + [height]):
+                tasks.append(ScaleBand(index, "rows", top, bottom,
+                                       (bottom - top) * plan.scaled_size[0]))
+            tasks.append(ScaleBand(index, "windows", 0, plan.grid[0], 0))
+        return tuple(sorted(tasks, key=lambda task: -task.pixels))
+
+    def _row_alignment(self, plan):
+        """Row cuts at multiples of this keep cells, colour tiles and boxes whole."""
         options = self.options
+        step_px = plan.step_cells * options.pixels_per_cell
+        align = options.pixels_per_cell
+        if options.hist_bins:
+            align = math.lcm(align, math.gcd(step_px, WINDOW))
+        if options.spatial_size:
+            align = math.lcm(align, WINDOW // options.spatial_size)
+        return align
+
+    def run(self, task, prepared, plans, grids, timings):
+        """Run one task of :meth:`bands` (its ``"windows"`` task only after its ``"rows"``)."""
+        plan = plans[task.index]
+        if task.kind == "rows":
+            self.score_rows(prepared, plan, task.first, task.stop, timings)
+        elif task.kind == "windows":
+            self.score_windows(plan, task.first, task.stop, grids[task.index], timings)
+        else:
+            self.score_band(prepared, plan, task.first, task.stop, grids[task.index], timings)
+
+    def score_band(self, prepared, plan, first, stop, scores, timings):
+        """Add the margins of window rows ``first`` .. ``stop - 1`` of a scale to ``scores``.
+
+        Only the resized rows, cells and colour maps those windows cover are
+        computed; each window's margin is exactly what :meth:`score_scale`
+        gives it.
+        """
+        if first >= stop:
+            return
+        step_px = plan.step_cells * self.options.pixels_per_cell
+        self.score_rows(prepared, plan, first * step_px, (stop - 1) * step_px + WINDOW, timings)
+        self.score_windows(plan, first, stop, scores, timings)
+
+    def score_rows(self, prepared, plan, top, bottom, timings):
+        """The features of scaled pixel rows ``top`` .. ``bottom - 1`` of a scale.
+
+        The rows are resized (plus one either side, for the gradients of the
+        outer cells), their cells and colour maps computed into the plan's
+        work arrays.  ``top`` and ``bottom`` keep cells and colour tiles
+        whole (see :meth:`_row_alignment`); tasks of one plan with disjoint
+        rows may run at the same time.
+        """
+        options = self.options
+        ppc = options.pixels_per_cell
         t0 = time.perf_counter()
         ox, oy = prepared.origin
         x0, y0, x1, y1 = plan.roi
         region = (slice(y0 - oy, y1 - oy), slice(x0 - ox, x1 - ox))
-        converted = self.scaled_region(prepared.converted[region], plan, 3)
+        rows = (top - 1, bottom + 1)
+        converted = self.scaled_region(prepared.converted[region], plan, 3, rows)
         grey = None
         if prepared.grey is not None:
-            grey = self.scaled_region(prepared.grey[region][:, :, None], plan, 1)
+            grey = self.scaled_region(prepared.grey[region][:, :, None], plan, 1, rows)
         t1 = time.perf_counter()
         timings["resize_convert"] += t1 - t0
-        scores = np.full(plan.grid, self.model.bias, dtype=np.float32)
-        step_px = plan.step_cells * options.pixels_per_cell
         if options.use_hog:
-            ppc, cpb = options.pixels_per_cell, options.cells_per_block
             # Cells in the phase layout of the window step, so each block row
             # is normalised and scored along whole rows, never writing the
             # block map to memory.
-            cells = cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
-                                    options.orientations, out=self._cells_buffer(plan),
-                                    phase_step=plan.step_cells,
-                                    phase_pad=self._phase_pad(plan))
+            cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
+                            options.orientations, out=self._cells_buffer(plan),
+                            phase_step=plan.step_cells, phase_pad=self._phase_pad(plan),
+                            rows=(top // ppc, bottom // ppc))
             t2 = time.perf_counter()
-            add_hog_scores_from_phase_cells(cells, plan.scaled_size[0] // ppc, (cpb, cpb),
-                                            options.block_norm, self._hog_weights,
-                                            plan.step_cells, scores)
             timings["cells"] += t2 - t1
-            t1 = time.perf_counter()
-            timings["blocks_score"] += t1 - t2
+            t1 = t2
         if options.spatial_size or options.hist_bins:
-            tile = math.gcd(step_px, WINDOW)
-            factor = WINDOW // options.spatial_size if options.spatial_size else 0
-            tiles, spatial = colour_maps(converted, self._hist_lut, tile, factor)
+            tile, factor = self._colour_grid(plan)
+            tiles, box = self._colour_buffers(plan)
+            # Tiles and boxes are local to their pixels: the rows' maps are
+            # the rows of the scale's maps.
+            colour_maps(converted[top:bottom], self._hist_lut, tile, factor,
+                        out=(tiles[top // tile:bottom // tile], box[top // max(factor, 1):
+                                                                    bottom // max(factor, 1)]))
+            timings["colour_score"] += time.perf_counter() - t1
+
+    def score_windows(self, plan, first, stop, scores, timings):
+        """Add the margins of window rows ``first`` .. ``stop - 1`` to ``scores``, from
+        the features :meth:`score_rows` computed for the rows they cover."""
+        options = self.options
+        if first >= stop:
+            return
+        t1 = time.perf_counter()
+        band_scores = scores[first:stop]
+        step_px = plan.step_cells * options.pixels_per_cell
+        if options.use_hog:
+            cpb = options.cells_per_block
+            add_hog_scores_from_phase_cells(self._cells_buffer(plan),
+                                            plan.scaled_size[0] // options.pixels_per_cell,
+                                            (cpb, cpb), options.block_norm, self._hog_weights,
+                                            plan.step_cells, scores, window_rows=(first, stop))
+            t2 = time.perf_counter()
+            timings["blocks_score"] += t2 - t1
+            t1 = t2
+        if options.spatial_size or options.hist_bins:
+            tile, factor = self._colour_grid(plan)
+            tiles, box = self._colour_buffers(plan)
+            top, bottom = first * step_px, (stop - 1) * step_px + WINDOW
             if options.spatial_size:
-                add_spatial_scores(spatial, self._spatial_weights, step_px // factor, scores)
+                add_spatial_scores(box[top // factor:bottom // factor], self._spatial_weights,
+                                   step_px // factor, band_scores)
             if options.hist_bins:
-                add_tile_window_sums(tiles, WINDOW // tile, step_px // tile, scores)
-        timings["colour_score"] += time.perf_counter() - t1
-        return scores
+                add_tile_window_sums(tiles[top // tile:bottom // tile], WINDOW // tile,
+                                     step_px // tile, band_scores)
+            timings["colour_score"] += time.perf_counter() - t1
+
+    def _colour_grid(self, plan):
+        """``(tile, factor)``: the histogram tile side and the spatial box factor of a scale."""
+        options = self.options
+        tile = math.gcd(plan.step_cells * options.pixels_per_cell, WINDOW)
+        return tile, (WINDOW // options.spatial_size if options.spatial_size else 0)
+
+    def _colour_buffers(self, plan):
+        """The scale's histogram tile sums and spatial box means (reused arrays)."""
+        tile, factor = self._colour_grid(plan)
+        width = plan.scaled_size[0]
+        height = (plan.grid[0] - 1) * plan.step_cells * self.options.pixels_per_cell + WINDOW
+        tiles = self._buffer(plan, "tiles", (height // tile, width // tile) if
+                             self.options.hist_bins else (0, 0), np.float32)
+        box = self._buffer(plan, "box", (height // factor, width // factor, 3) if factor
+                           else (0, 0, 3), np.float32)
+        return tiles, box

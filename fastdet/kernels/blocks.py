@@ -98,7 +98,7 @@ def _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, dest_r
                     dest_row[i] *= inv
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _normalize_serial(cells, energy, cpb_y, cpb_x, norm_code, eps, out):
     for by in range(out.shape[0]):
         _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps,

@@ -60,9 +60,10 @@ log = logging.getLogger("fastdet.kernels")
 #: Overrides the user cache folder (the kernels go in its ``kernels/`` subfolder).
 CACHE_ENV_VAR = "FASTDET_CACHE_DIR"
 
-#: First-run compile time of the kernels a detection needs, measured on the
-#: development machine; what the first run announces (see ``fastdet.cli.common``).
-TYPICAL_COMPILE_SECONDS = 30
+#: First-run compile time of the kernels a detection needs (two processes,
+#: see ``fastdet.kernels.warmup``), measured on the development machine;
+#: what the first run announces (see ``fastdet.cli.common``).
+TYPICAL_COMPILE_SECONDS = 15
 
 
 def target_cpu():

@@ -157,14 +157,14 @@ _box4_block = _box_block(4)
 
 
 # -- tile sums ---------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pixel_weight(flat, lut, i):
     """lut[0, v0] + lut[1, v1] + lut[2, v2] of the pixel at flat[i:i + 3]."""
     return ((lut[uint64(flat[i])] + lut[_LUT1 + uint64(flat[i + uint64(1)])])
             + lut[_LUT2 + uint64(flat[i + uint64(2)])])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _quad_weight(flat, lut, i):
     """Sum of the weights of the 4 pixels at flat[i:i + 12]."""
     if not _LITTLE_ENDIAN:
@@ -189,7 +189,7 @@ def _quad_weight(flat, lut, i):
     return (p0 + p1) + (p2 + p3)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _tile_row_quads(flat, row_bytes, lut, tile, y0, out):
     """out[tx] = weight sum of tile tx of the tile row starting at image row y0;
     the tile side is a multiple of 4."""
@@ -208,7 +208,7 @@ def _tile_row_quads(flat, row_bytes, lut, tile, y0, out):
         out[tx] = total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _tile_row_pixels(flat, row_bytes, lut, tile, y0, out):
     """Like :func:`_tile_row_quads` for any tile side, one pixel at a time."""
     t = uint64(tile)
@@ -314,7 +314,7 @@ def _bin_column_sums(typingctx, flat, start, row_bytes, rows, blocks, table, sum
     return sig, codegen
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _bin_table(lut, table):
     """Fill table[32c + b] with lut[c, 8b] and return True if each channel of
     the flat lut is constant on aligned runs of 8 values; else return False."""
@@ -328,7 +328,7 @@ def _bin_table(lut, table):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _tile_row_bins(flat, row_bytes, lut, table, tile, y0, columns, out):
     """Like :func:`_tile_row_quads` with a bin table: sums of each image
     column over the tile row into ``columns`` (16-pixel vector blocks, then
@@ -360,7 +360,7 @@ def _tile_row_bins(flat, row_bytes, lut, table, tile, y0, columns, out):
 
 
 # -- box mean ----------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _box_pixels(flat, row_bytes, factor, scale, box_flat, box_w, oy, ox0):
     """Output pixels [ox0, box_w) of output row oy, one at a time."""
     f = uint64(factor)
@@ -382,7 +382,7 @@ def _box_pixels(flat, row_bytes, factor, scale, box_flat, box_w, oy, ox0):
         box_flat[o + uint64(2)] = np.float32(t2) * scale
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _box_rows(flat, row_bytes, factor, box_flat, box_w, oy0, oy1):
     """Output rows [oy0, oy1) of the box mean: whole blocks of _BOX_BLOCK
     pixels for factors 1, 2 and 4, the rest one pixel at a time."""
@@ -429,7 +429,9 @@ def _colour_maps(path, image, lut, tile, factor, want_tiles, want_box, tiles, bo
     if path == PATH_AVX512 and not (_CAN_AVX512BW and want_tiles and _bin_table(lut_flat, table)):
         path = PATH_SCALAR
     columns = np.empty(width if path == PATH_AVX512 else 0, np.float32)
-    done = 0                                   # box rows written so far
+    # Box rows written so far; an int64 from the start, not the literal 0,
+    # so that _box_rows is compiled once.
+    done = np.int64(0)
     for ty in range(tiles.shape[0] if want_tiles else 0):
         scalar = True
         if _CAN_AVX512BW:
@@ -452,7 +454,7 @@ def _colour_maps(path, image, lut, tile, factor, want_tiles, want_box, tiles, bo
     return path
 
 
-def colour_maps(image, lut=None, tile=8, factor=0):
+def colour_maps(image, lut=None, tile=8, factor=0, out=(None, None)):
     """Histogram-weight tile sums and the box-averaged image, in one pass.
 
     Parameters
@@ -465,6 +467,9 @@ def colour_maps(image, lut=None, tile=8, factor=0):
         Tile side of the sums.
     factor : int
         Box-averaging factor of the spatial image; 0 skips it.
+    out : tuple of ndarray or None
+        C-contiguous float32 arrays of the results' shapes to write the tile
+        sums and the box means into (``None``: new arrays).
 
     Returns
     -------
@@ -492,9 +497,18 @@ def colour_maps(image, lut=None, tile=8, factor=0):
     want_tiles = lut is not None
     want_box = factor > 0
     # Every element is written by the kernel: no need to zero them first.
-    tiles = np.empty((height // tile, width // tile) if want_tiles else (0, 0), np.float32)
-    box = np.empty((height // factor, width // factor, 3) if want_box else (0, 0, 3), np.float32)
+    tiles = _colour_out(out[0], (height // tile, width // tile) if want_tiles else (0, 0))
+    box = _colour_out(out[1], (height // factor, width // factor, 3) if want_box else (0, 0, 3))
     lut = np.zeros((3, 256), np.float32) if lut is None else np.ascontiguousarray(lut, np.float32)
     path = PATH_AVX512 if HAVE_AVX512BW else PATH_SCALAR
     _colour_maps(path, image, lut, int(tile), int(factor), want_tiles, want_box, tiles, box)
     return tiles, box
+
+
+def _colour_out(out, shape):
+    if out is None:
+        return np.empty(shape, np.float32)
+    if out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
+        raise ValueError(f"out arrays must be C-contiguous float32 of shape {shape}, "
+                         f"got {out.dtype} {out.shape}")
+    return out

@@ -54,12 +54,12 @@ import numpy as np
 __all__ = ["accumulate_heat", "accumulate_heat_into", "box_heat_region", "heat_cells"]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _clip(value, size):
     return min(max(np.int64(value), 0), size)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _edge_starts(index, size):
     """Turn edge marks into cell numbers, in place; return the cell starts.
 

@@ -32,7 +32,10 @@ scoring, in the *phase layout* of a window step (:func:`phase_layout_shape`).
 """
 
 import functools
+import hashlib
 import math
+import os
+import zipfile
 
 import numba
 import numpy as np
@@ -42,6 +45,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ._llvm import HAVE_AVX2, HAVE_AVX512F, load_vector, store_vector
+from .cache import kernel_cache_dir
 from .hog_float64 import float64_cell_histograms
 
 # A gradient whose cross product with a bin boundary is below this fraction of
@@ -77,7 +81,7 @@ def orientation_tables(nbins):
     return cos_sin, angles
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _exact_bin(gx, gy, bounds, nbins):
     """scikit-image's rule: float64 atan2 in degrees modulo 180, then bounds."""
     angle = np.arctan2(np.float64(gy), np.float64(gx)) * (180.0 / np.pi) % 180.0
@@ -87,7 +91,7 @@ def _exact_bin(gx, gy, bounds, nbins):
     return -1  # angle rounded to exactly 180: scikit-image drops the pixel
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _gradient_row(image, y, channel, gx, gy):
     """Central-difference gradients of one image row, zero at the borders."""
     height, width = image.shape[0], image.shape[1]
@@ -103,7 +107,7 @@ def _gradient_row(image, y, channel, gx, gy):
         gx[x] = image[y, x + 1, channel] - image[y, x - 1, channel]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _bin_row(gx, gy, count, cos_sin, bounds, nbins, magnitude, bins):
     """Magnitude and orientation bin of ``count`` gradients."""
     for x in range(count):
@@ -128,7 +132,7 @@ def _bin_row(gx, gy, count, cos_sin, bounds, nbins, magnitude, bins):
         bins[x] = b
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _histogram_cell_row(image, cell_row, ppc_y, ppc_x, ncx, nbins, merge_mode,
                         cos_sin, bounds, out):
     """Fill ``out[cell_row]`` (shape (ncx, C_out, nbins))."""
@@ -228,7 +232,7 @@ def orientation_lut(nbins):
     return bins.astype(np.uint8)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _histogram_cell_row_u8(image, cell_row, ppc_y, ppc_x, ncx, nbins, bin_lut, target, index,
                            magnitude, acc, layout, out):
     """uint8 path for one cell row: gradient -> table index, then table -> histogram.
@@ -280,7 +284,7 @@ def _histogram_cell_row_u8(image, cell_row, ppc_y, ppc_x, ncx, nbins, bin_lut, t
                 out[dest + b * layout[3]] = acc[base + b] * scale
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _slot_targets(ncx, ppc_x, channels, nbins):
     """Histogram slot base of every element of a flat row (pixel-major)."""
     used = ncx * ppc_x * channels
@@ -358,6 +362,7 @@ def to_phase_layout(cells, step, pad=0):
     return phase
 
 
+@functools.lru_cache(maxsize=256)
 def _layout(shape, phase_step=None, cells_x=None):
     """Flat-index strides of a cell array: (row, position, channel, bin, step, K).
 
@@ -373,11 +378,14 @@ def _layout(shape, phase_step=None, cells_x=None):
         rows, channels, nbins, length = shape
         strides = (channels * nbins * length, 1, nbins * length, length, phase_step,
                    -(-cells_x // phase_step))
-    return np.array(strides, dtype=np.uint64)
+    # Cached (the same few shapes every frame): read-only, shared.
+    layout = np.array(strides, dtype=np.uint64)
+    layout.flags.writeable = False
+    return layout
 
 
 def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, parallel=False, out=None,
-                    phase_step=None, phase_pad=0):
+                    phase_step=None, phase_pad=0, rows=None):
     """Per-cell histograms of unsigned gradient orientation.
 
     Parameters
@@ -409,6 +417,10 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
         instead of ``(Hc, Wc, C, nbins)``.
     phase_pad : int
         Zero positions after the last phase (phase layout only).
+    rows : tuple of int, optional
+        ``(first, stop)``: fill only these cell rows of ``out`` (uint8
+        images in the phase layout; the other rows are left as they are).
+        Threads compute bands of one image this way.
 
     Returns
     -------
@@ -441,17 +453,18 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
             _output(out, phase_shape)[...] = phase
             return out
         out = _output(out, phase_shape)
-        # Positions no cell maps to (short phases, padding) stay zero.
-        out[...] = 0.0
-        if out.size:
-            _u8_cells(image, ppc_y, ppc_x, nbins, parallel, cells_y, cells_x,
+        first, stop = (0, cells_y) if rows is None else (max(0, int(rows[0])),
+                                                         min(cells_y, int(rows[1])))
+        if out.size and first < stop:
+            _zero_unmapped(out[first:stop], cells_x, phase_step)
+            _u8_cells(image, ppc_y, ppc_x, nbins, parallel, first, stop, cells_x,
                       _layout(phase_shape, phase_step, cells_x), out.reshape(-1))
         return out
     out = _output(out, shape, np.float64 if image.dtype == np.float64 else np.float32)
     if out.size == 0:
         return out
     if image.dtype == np.uint8 and not merge_channels:
-        _u8_cells(image, ppc_y, ppc_x, nbins, parallel, cells_y, cells_x, _layout(shape),
+        _u8_cells(image, ppc_y, ppc_x, nbins, parallel, 0, cells_y, cells_x, _layout(shape),
                   out.reshape(-1))
         return out
     cos_sin, bounds = _tables(nbins)
@@ -466,21 +479,33 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
     return out
 
 
-def _u8_cells(image, ppc_y, ppc_x, nbins, parallel, cells_y, cells_x, layout, out_flat):
+def _zero_unmapped(phase, cells_x, step):
+    """Zero the positions of phase-layout cells that no cell column maps to:
+    the end of each phase shorter than the longest, and the padding.  Every
+    other position is written by the cell kernels."""
+    per_phase = -(-cells_x // step)
+    for q in range(min(step, cells_x)):
+        filled = -(-(cells_x - q) // step)
+        phase[..., q * per_phase + filled:(q + 1) * per_phase] = 0.0
+    phase[..., min(step, cells_x) * per_phase:] = 0.0
+
+
+def _u8_cells(image, ppc_y, ppc_x, nbins, parallel, first, stop, cells_x, layout, out_flat):
+    """Cell rows ``first`` .. ``stop - 1`` of a uint8 image into ``out_flat``."""
     bin_lut = _bin_lut(nbins)
     fast = ((ppc_y, ppc_x, nbins) == _FAST_PPC + (_FAST_NBINS,)
             and image.shape[2] in _FAST_CHANNELS and _fast_rule_ok())
-    bands = min(numba.get_num_threads(), cells_y) if parallel else 1
+    bands = min(numba.get_num_threads(), stop - first) if parallel and first == 0 else 1
     if fast and bands > 1:
-        _cell_histograms_u8_fast_parallel(image, bin_lut, bands, cells_y, cells_x, layout,
+        _cell_histograms_u8_fast_parallel(image, bin_lut, bands, stop, cells_x, layout,
                                           out_flat)
     elif fast:
-        _cell_rows_u8_fast(image, 0, cells_y, bin_lut, cells_x, layout, out_flat)
+        _cell_rows_u8_fast(image, first, stop, bin_lut, cells_x, layout, out_flat)
     elif bands > 1:
-        _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, cells_y,
+        _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, stop,
                                      cells_x, layout, out_flat)
     else:
-        _cell_rows_u8(image, 0, cells_y, ppc_y, ppc_x, nbins, bin_lut, cells_x, layout,
+        _cell_rows_u8(image, first, stop, ppc_y, ppc_x, nbins, bin_lut, cells_x, layout,
                       out_flat)
 
 
@@ -489,9 +514,44 @@ def _tables(nbins):
     return orientation_tables(nbins)
 
 
+def _lut_path(nbins):
+    return kernel_cache_dir() / f"orientation-lut-{nbins}-numpy-{np.__version__}.npz"
+
+
+def _digest(lut):
+    return np.frombuffer(hashlib.sha256(lut.tobytes()).digest(), dtype=np.uint8)
+
+
 @functools.lru_cache(maxsize=None)
 def _bin_lut(nbins):
-    return orientation_lut(nbins)
+    """:func:`orientation_lut`, kept beside the compiled kernels.
+
+    Building it (a float64 ``arctan2`` of 261,121 gradients) took 23 ms of
+    every process's first detection; the saved copy loads in about 1 ms.  It
+    is keyed by NumPy's version (whose ``arctan2`` defines it) and written
+    atomically with its SHA-256, which is checked on loading: a damaged copy
+    is rebuilt, never used.  An unwritable cache folder only means it is
+    rebuilt every time.
+    """
+    path = _lut_path(nbins)
+    try:
+        with np.load(path, allow_pickle=False) as saved:
+            lut, digest = saved["lut"], saved["sha256"]
+        if (lut.shape == (_GRAD_SPAN * _GRAD_SPAN,) and lut.dtype == np.uint8
+                and np.array_equal(digest, _digest(lut))):
+            return lut
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile):
+        pass
+    lut = orientation_lut(nbins)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f"{path.name}.{os.getpid()}.part")
+        with open(partial, "wb") as handle:
+            np.savez(handle, lut=lut, sha256=_digest(lut))
+        os.replace(partial, path)
+    except OSError:
+        pass
+    return lut
 
 
 def _output(out, shape, dtype=np.float32):
@@ -577,13 +637,28 @@ def threshold_bins(gx, gy, nbins):
 
 @functools.lru_cache(maxsize=None)
 def _fast_rule_ok(nbins=_FAST_NBINS):
-    """Whether the threshold rule reproduces orientation_lut(nbins) exactly."""
+    """Whether the threshold rule reproduces orientation_lut(nbins) exactly.
+
+    A pass is remembered beside the saved table (see :func:`_bin_lut`), keyed
+    by the thresholds, so later processes skip the 20 ms check; a failure is
+    checked every time.
+    """
+    key = hashlib.sha256(repr(_fast_thresholds(nbins)).encode()).hexdigest()[:16]
+    passed = _lut_path(nbins).with_suffix(f".rule-{key}-ok")
+    lut = _bin_lut(nbins)
+    if passed.exists() and _lut_path(nbins).exists():
+        return True
     g = np.arange(-255, 256)
     gy, gx = np.meshgrid(g, g, indexing="ij")
     rule = threshold_bins(gx, gy, nbins).ravel()
-    lut = orientation_lut(nbins).astype(np.int64)
     nonzero = ((gx != 0) | (gy != 0)).ravel()
-    return bool(np.array_equal(rule[nonzero], lut[nonzero]))
+    ok = bool(np.array_equal(rule[nonzero], lut.astype(np.int64)[nonzero]))
+    if ok:
+        try:
+            passed.touch()
+        except OSError:
+            pass
+    return ok
 
 
 class _ReductionPlan:
@@ -861,7 +936,7 @@ _SCRATCH3 = _reduction_plan(_LANES, 3, 8, 9).size
 _SCRATCH1 = _reduction_plan(_LANES, 1, 8, 9).size
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _scalar_cells(flat, height, row_bytes, channels, y0, ppc_y, ppc_x, cx0, cx1, nbins, bin_lut,
                   acc):
     """Gradient-magnitude sums of cells cx0 .. cx1 - 1 of one cell row, one

@@ -69,7 +69,7 @@ __all__ = [
 ]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _find_root(parent, label):
     # Path halving keeps trees shallow without a second pass or recursion.
     while parent[label] != label:
@@ -78,7 +78,7 @@ def _find_root(parent, label):
     return label
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _union(parent, label_a, label_b):
     root_a = _find_root(parent, label_a)
     root_b = _find_root(parent, label_b)
@@ -120,7 +120,7 @@ def label_components_kernel(mask, eight_connected):
     return labels, count
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _parent_size(height, width):
     return height * ((width + 1) // 2) + 1
 
@@ -256,7 +256,7 @@ def label_components(mask, connectivity):
     return labels, int(count)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _sentinel_boxes(count, width, height):
     """Boxes with inverted bounds, so the first included pixel sets every bound."""
     boxes = np.empty((count, 4), dtype=np.int32)
@@ -267,7 +267,7 @@ def _sentinel_boxes(count, width, height):
     return boxes
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _include(boxes, row, x, y):
     """Grow box ``row`` to contain pixel (x, y)."""
     if x < boxes[row, 0]:
@@ -280,7 +280,7 @@ def _include(boxes, row, x, y):
         boxes[row, 3] = y + 1
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _zero_unused(boxes):
     """Boxes that never included a pixel become [0, 0, 0, 0]."""
     for row in range(boxes.shape[0]):
@@ -406,8 +406,9 @@ def split_component(heat, mask, levels, min_width, min_height, connectivity):
     ----------
     heat : ndarray of float32, shape (h, w)
         Heat around the blob.
-    mask : ndarray of bool or uint8, shape (h, w)
-        The blob's pixels.
+    mask : ndarray of uint8, shape (h, w)
+        The blob's pixels (1), C-contiguous; a bool mask can be passed as
+        ``mask.view(np.uint8)`` (one compiled version serves both).
     levels : ndarray of float32
         Increasing thresholds to try.
     min_width, min_height : int
@@ -431,7 +432,7 @@ def split_component(heat, mask, levels, min_width, min_height, connectivity):
             for x in range(width):
                 if not mask[y, x]:
                     continue
-                best = 0
+                best = np.int64(0)  # not the literal 0: _include compiles once
                 best_distance = np.inf
                 for k in range(big):
                     dx = max(seeds[k, 0] - x, 0, x - (seeds[k, 2] - 1))
@@ -443,11 +444,14 @@ def split_component(heat, mask, levels, min_width, min_height, connectivity):
                 _include(out, best, x, y)
         _zero_unused(out)
         return out
-    whole = _sentinel_boxes(1, width, height)
+    # Counts as variables, not constants: Numba would compile the helpers
+    # again for each literal value.
+    one, first = np.int64(1), np.int64(0)
+    whole = _sentinel_boxes(one, width, height)
     for y in range(height):
         for x in range(width):
             if mask[y, x]:
-                _include(whole, 0, x, y)
+                _include(whole, first, x, y)
     _zero_unused(whole)
     return whole
 
@@ -460,7 +464,7 @@ def _bits(values):
     raise NotImplementedError("only callable from jitted code")
 
 
-@overload(_bits, inline="always")
+@overload(_bits)
 def _bits_overload(values):
     if values.dtype == types.float32:
         return lambda values: values.view(np.uint32)
@@ -558,10 +562,12 @@ def _car_sized_parts(values, mask, row_units, col_units, levels, min_width, min_
             continue
         parts = component_boxes(labels, count)
         car_sized = np.zeros(count, dtype=np.bool_)
+        n_car_sized = 0
         for k in range(count):
             car_sized[k] = (col_units[parts[k, 2]] - col_units[parts[k, 0]] >= min_width
                             and row_units[parts[k, 3]] - row_units[parts[k, 1]] >= min_height)
-        if np.count_nonzero(car_sized) >= 2:
+            n_car_sized += car_sized[k]
+        if n_car_sized >= 2:
             return parts[car_sized]
     return np.zeros((0, 4), dtype=np.int32)
 
@@ -575,7 +581,7 @@ def _splits(values, mask, row_units, col_units, levels, min_width, min_height,
                             eight_connected).shape[0] >= 2
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _samples(starts, first, last, index0, step):
     """Which cells the sampled units ``first, first + step, ... < last`` fall in.
 

@@ -82,7 +82,7 @@ def saturation_mask(image, threshold):
     return out
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _popcount(word):
     # Bit-parallel count (Hacker's Delight); LLVM lowers it to POPCNT where available.
     word = word - ((word >> uint64(1)) & uint64(0x5555555555555555))

@@ -292,13 +292,13 @@ def _hblock(typingctx, row, base, picks, weights, dest, block):
     return sig, codegen
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _hvalue(row, first, second, w_first, w_second, dest, e):
     dest[e] = np.int16((np.int32(row[uint64(first[e])]) * w_first[e]
                         + np.int32(row[uint64(second[e])]) * w_second[e]) >> 4)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _hgroups(row, first, second, w_first, w_second, base, usable, masks, weights, dest, g0,
              g1):
     """Groups g0 .. g1 - 1 one at a time: a pshufb group where its sources fit
@@ -311,14 +311,14 @@ def _hgroups(row, first, second, w_first, w_second, base, usable, masks, weights
                 _hvalue(row, first, second, w_first, w_second, dest, e)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _hrest(row, first, second, w_first, w_second, dest, e0):
     """The values past the last whole group, by the scalar loop."""
     for e in range(e0, uint64(dest.size)):
         _hvalue(row, first, second, w_first, w_second, dest, e)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _horizontal_avx2(row, first, second, w_first, w_second, base, usable, masks, weights,
                      block_base, picks, dest):
     groups = uint64(usable.size)
@@ -334,7 +334,7 @@ def _horizontal_avx2(row, first, second, w_first, w_second, base, usable, masks,
     _hrest(row, first, second, w_first, w_second, dest, groups * uint64(4))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _horizontal_avx512(row, first, second, w_first, w_second, base, usable, masks, weights,
                        block_base, picks, dest):
     blocks = uint64(block_base.size)
@@ -346,7 +346,7 @@ def _horizontal_avx512(row, first, second, w_first, w_second, base, usable, mask
     _hrest(row, first, second, w_first, w_second, dest, groups * uint64(4))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _horizontal_ssse3(row, first, second, w_first, w_second, base, usable, masks, weights,
                       block_base, picks, dest):
     groups = uint64(usable.size)
@@ -355,7 +355,7 @@ def _horizontal_ssse3(row, first, second, w_first, w_second, base, usable, masks
     _hrest(row, first, second, w_first, w_second, dest, groups * uint64(4))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _horizontal_scalar(row, first, second, w_first, w_second, base, usable, masks, weights,
                        block_base, picks, dest):
     for e in range(uint64(dest.size)):
@@ -408,7 +408,7 @@ def _vblock(typingctx, upper, lower, w_upper, w_lower, dest, start):
     return sig, codegen
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _vertical(upper, lower, w_upper, w_lower, dest):
     n = uint64(dest.size)
     blocks = n // uint64(_VBLOCK)
@@ -421,7 +421,7 @@ def _vertical(upper, lower, w_upper, w_lower, dest):
 
 
 # -- driver --------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _find(held, source):
     if held[0] == source:
         return 0
@@ -436,8 +436,12 @@ def _find(held, source):
 #: code stays valid because Numba keys its cache by the host CPU.
 _CAN_AVX512BW, _CAN_AVX2, _CAN_SSSE3 = HAVE_AVX512BW, HAVE_AVX2, HAVE_SSSE3
 
+#: The best path this CPU has: the only one :func:`_resize` compiles.
+NATIVE_PATH = 0 if HAVE_AVX512BW else 1 if HAVE_AVX2 else 2 if HAVE_SSSE3 else 3
+_NATIVE_AVX512, _NATIVE_AVX2, _NATIVE_SSSE3 = NATIVE_PATH == 0, NATIVE_PATH == 1, NATIVE_PATH == 2
 
-@njit(cache=True)
+
+@njit(cache=True, nogil=True)
 def _horizontal(path, row, first, second, w_first, w_second, base, usable, masks, weights,
                 block_base, picks, dest):
     """The horizontal pass of ``path`` (0 AVX-512BW, 1 AVX2, 2 SSSE3, 3 scalar)."""
@@ -461,29 +465,80 @@ def _horizontal(path, row, first, second, w_first, w_second, base, usable, masks
 
 
 @njit(cache=True, nogil=True)
-def _resize(path, src, first, second, w_first, w_second, base, usable, masks, weights,
-            block_base, picks, y_first, y_second, w_y_first, w_y_second, out):
-    # Two horizontal rows kept: consecutive output rows share source rows.
+def _horizontal_native(row, first, second, w_first, w_second, base, usable, masks, weights,
+                       block_base, picks, dest):
+    """The horizontal pass of :data:`NATIVE_PATH`: the other paths are pruned
+    before typing, so they are never compiled."""
+    if _NATIVE_AVX512:
+        _horizontal_avx512(row, first, second, w_first, w_second, base, usable, masks,
+                           weights, block_base, picks, dest)
+    elif _NATIVE_AVX2:
+        _horizontal_avx2(row, first, second, w_first, w_second, base, usable, masks,
+                         weights, block_base, picks, dest)
+    elif _NATIVE_SSSE3:
+        _horizontal_ssse3(row, first, second, w_first, w_second, base, usable, masks,
+                          weights, block_base, picks, dest)
+    else:
+        _horizontal_scalar(row, first, second, w_first, w_second, base, usable, masks,
+                           weights, block_base, picks, dest)
+
+
+@njit(cache=True, nogil=True)
+def _row_slots(held, upper, lower):
+    """Where output row taps ``upper`` and ``lower`` are kept among the two
+    horizontal rows, and whether each must be computed first (``held`` is
+    updated).  Consecutive output rows share source rows."""
+    slot_upper = _find(held, upper)
+    slot_lower = _find(held, lower)
+    new_upper = slot_upper < 0
+    new_lower = False
+    if new_upper:
+        # Never evict the row the other tap sits in.
+        slot_upper = 1 if slot_lower == 0 else 0
+        held[slot_upper] = upper
+    if slot_lower < 0:
+        if lower == upper:
+            slot_lower = slot_upper
+        else:
+            slot_lower = 1 - slot_upper
+            held[slot_lower] = lower
+            new_lower = True
+    return slot_upper, new_upper, slot_lower, new_lower
+
+
+@njit(cache=True, nogil=True)
+def _resize(src, first, second, w_first, w_second, base, usable, masks, weights, block_base,
+            picks, y_first, y_second, w_y_first, w_y_second, out):
+    """The resize with this CPU's best horizontal path, the only one compiled."""
     rows = np.empty((2, out.shape[1]), dtype=np.int16)
     held = np.array([-1, -1], dtype=np.int64)
     for dy in range(out.shape[0]):
         upper, lower = y_first[dy], y_second[dy]
-        slot_upper = _find(held, upper)
-        slot_lower = _find(held, lower)
-        if slot_upper < 0:
-            # Never evict the row the other tap sits in.
-            slot_upper = 1 if slot_lower == 0 else 0
+        slot_upper, new_upper, slot_lower, new_lower = _row_slots(held, upper, lower)
+        if new_upper:
+            _horizontal_native(src[upper], first, second, w_first, w_second, base, usable,
+                               masks, weights, block_base, picks, rows[slot_upper])
+        if new_lower:
+            _horizontal_native(src[lower], first, second, w_first, w_second, base, usable,
+                               masks, weights, block_base, picks, rows[slot_lower])
+        _vertical(rows[slot_upper], rows[slot_lower], w_y_first[dy], w_y_second[dy], out[dy])
+
+
+@njit(cache=True, nogil=True)
+def _resize_path(path, src, first, second, w_first, w_second, base, usable, masks, weights,
+                 block_base, picks, y_first, y_second, w_y_first, w_y_second, out):
+    """:func:`_resize` with any path the CPU has (tests compare every path)."""
+    rows = np.empty((2, out.shape[1]), dtype=np.int16)
+    held = np.array([-1, -1], dtype=np.int64)
+    for dy in range(out.shape[0]):
+        upper, lower = y_first[dy], y_second[dy]
+        slot_upper, new_upper, slot_lower, new_lower = _row_slots(held, upper, lower)
+        if new_upper:
             _horizontal(path, src[upper], first, second, w_first, w_second, base, usable,
                         masks, weights, block_base, picks, rows[slot_upper])
-            held[slot_upper] = upper
-        if slot_lower < 0:
-            if lower == upper:
-                slot_lower = slot_upper
-            else:
-                slot_lower = 1 - slot_upper
-                _horizontal(path, src[lower], first, second, w_first, w_second, base, usable,
-                            masks, weights, block_base, picks, rows[slot_lower])
-                held[slot_lower] = lower
+        if new_lower:
+            _horizontal(path, src[lower], first, second, w_first, w_second, base, usable,
+                        masks, weights, block_base, picks, rows[slot_lower])
         _vertical(rows[slot_upper], rows[slot_lower], w_y_first[dy], w_y_second[dy], out[dy])
 
 
@@ -554,7 +609,7 @@ def _halve(src, channels, out):
             row[i] = np.uint8((total + 2) >> 2)
 
 
-def resize_linear(image, size, out=None):
+def resize_linear(image, size, out=None, rows=None):
     """Resize a uint8 image to ``size`` exactly as ``cv2.resize(..., INTER_LINEAR)``.
 
     Parameters
@@ -565,6 +620,10 @@ def resize_linear(image, size, out=None):
     size : tuple of int
         ``(width, height)`` of the result, as in OpenCV.
     out : ndarray of uint8, shape (height, width, C), C-contiguous, optional
+    rows : tuple of int, optional
+        ``(first, stop)``: compute only these rows of the result (the others
+        of ``out`` are left as they are), each exactly as in the whole
+        result.  Threads resize bands of one image this way.
 
     Returns
     -------
@@ -586,18 +645,26 @@ def resize_linear(image, size, out=None):
     elif (not isinstance(out, np.ndarray) or out.shape != shape or out.dtype != np.uint8
           or not out.flags.c_contiguous or not out.flags.writeable):
         raise ValueError(f"out must be a writeable C-contiguous uint8 array of shape {shape}")
+    first, stop = (0, height) if rows is None else (max(0, int(rows[0])),
+                                                     min(height, int(rows[1])))
+    if first >= stop:
+        return out
     if (source_h, source_w) == (height, width):
-        out[...] = image
+        out[first:stop] = image[first:stop]
         return out
     # Rows of a column-sliced region stay contiguous: a (H, W * C) view.
-    rows = image.reshape(source_h, source_w * channels)
-    if rows.strides[1] != 1:
-        rows = np.ascontiguousarray(rows)
+    source = image.reshape(source_h, source_w * channels)
+    if source.strides[1] != 1:
+        source = np.ascontiguousarray(source)
+    dest = out.reshape(height, width * channels)[first:stop]
     if (source_h, source_w) == (2 * height, 2 * width):
-        _halve(rows, channels, out.reshape(height, width * channels))
+        _halve(source[2 * first:2 * stop], channels, dest)
         return out
     x_tables = column_tables(source_w, width, channels)
-    y_tables = linear_tables(source_h, height, False)
+    y_tables = [table[first:stop] for table in linear_tables(source_h, height, False)]
     path = 0 if HAVE_AVX512BW else 1 if HAVE_AVX2 else 2 if HAVE_SSSE3 else 3
-    _resize(path, rows, *x_tables, *y_tables, out.reshape(height, width * channels))
+    if path == NATIVE_PATH:
+        _resize(source, *x_tables, *y_tables, dest)
+    else:  # a path forced by the tests
+        _resize_path(path, source, *x_tables, *y_tables, dest)
     return out

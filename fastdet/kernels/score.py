@@ -467,9 +467,13 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
                     else:
                         _window_dots_1(weights_flat, w_base, w_step, normalised, stride, at,
                                        second, channels, per_channel, scores, a0, row_len)
+    # Unsigned indices: with Python's negative-index wraparound LLVM turned
+    # this contiguous copy into vector gathers (slow on AMD).
     for iy in range(first_row, stop_row):
-        for ix in range(cols_out):
-            out[iy, ix] += scores[(iy - first_row) * row_len + ix]
+        base = uint64((iy - first_row) * row_len)
+        row = out[iy]
+        for ix in range(uint64(cols_out)):
+            row[ix] += scores[base + ix]
 
 
 @njit(cache=True, parallel=True)
@@ -501,7 +505,7 @@ def phase_scoring_pad(cells_x, step_cells, cells_per_block):
 
 
 def add_hog_scores_from_phase_cells(cells, cells_x, cells_per_block, norm, weights, step_cells,
-                                    out, eps=EPS, parallel=False):
+                                    out, eps=EPS, parallel=False, window_rows=None):
     """Normalise blocks and add every window's HOG score, one block row at a time.
 
     Equivalent to :func:`fastdet.kernels.blocks.normalize_blocks` followed by
@@ -530,6 +534,9 @@ def add_hog_scores_from_phase_cells(cells, cells_x, cells_per_block, norm, weigh
     eps : float
     parallel : bool
         Spread bands of window rows over Numba's threads.
+    window_rows : tuple of int, optional
+        ``(first, stop)``: score only these window rows; only the cell rows
+        they cover are read (and their padding written).
     """
     cpb_y, cpb_x = int(cells_per_block[0]), int(cells_per_block[1])
     n, _, length = weights.shape
@@ -546,17 +553,21 @@ def add_hog_scores_from_phase_cells(cells, cells_x, cells_per_block, norm, weigh
                          f"for {cells_x} columns stepped by {step_cells}, got {positions}")
     blocks_shape = (rows - cpb_y + 1, cells_x - cpb_x + 1)
     _check_fits(out, blocks_shape, (n, n), step_cells)
-    if out.size == 0:
+    first, stop = (0, out.shape[0]) if window_rows is None else (
+        max(0, int(window_rows[0])), min(out.shape[0], int(window_rows[1])))
+    if out.shape[1] == 0 or first >= stop:
         return
-    _fill_wrapped_phases(cells, per_phase, int(step_cells), cpb_x - 1)
+    # The cell rows the band's windows cover.
+    _fill_wrapped_phases(cells[first * step_cells:(stop - 1) * step_cells + n + cpb_y - 1],
+                         per_phase, int(step_cells), cpb_x - 1)
     weights = np.ascontiguousarray(weights, dtype=np.float32)
     args = (cells, per_phase, cpb_y, cpb_x, NORM_CODES[norm], float(eps), weights,
             int(step_cells), out)
-    bands = min(numba.get_num_threads(), out.shape[0]) if parallel else 1
+    bands = min(numba.get_num_threads(), stop - first) if parallel and window_rows is None else 1
     if bands > 1:
         _add_hog_scores_phase_parallel(*args, bands)
     else:
-        _add_hog_scores_phase(*args, 0, out.shape[0])
+        _add_hog_scores_phase(*args, first, stop)
 
 
 def add_spatial_scores(spatial, weights, step_px, out, parallel=False):

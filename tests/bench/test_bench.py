@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from fastdet.bench.floor import floor_estimate
-from fastdet.bench.latency import BenchmarkRun, format_stages, format_table, run_benchmark
+from fastdet.bench.latency import (BenchmarkRun, format_stages, format_table, format_threads,
+                                   run_benchmark)
 from fastdet.bench.peers import native_search
 from fastdet.bench.scaling import ScalingPoint, format_scaling
 from fastdet.bench.scaling_plot import plot_scaling
@@ -79,6 +80,18 @@ def test_tables_show_ratios_and_stage_split():
     split = format_stages([fast, reference])
     assert "python overhead" in split and "labelling" in split
     assert "| fastdet 1 thread | 1.00 | 1.00 | 1.00 | 1.00 | 1.00 | 1.00 | 4.00 | 10.00 |" in split
+
+
+def test_threads_table_shows_each_thread_and_both_speed_ups():
+    one = PipelineResult("fastdet 1 thread", [0.004] * 3, [0, 1, 2], 100.0, {"total": 4.0},
+                         [3.8], [3.6], 3.9)
+    two = PipelineResult("fastdet 2 threads", [0.0025] * 3, [0, 1, 2], 100.0, {"total": 2.5},
+                         [2.0, 1.9], [1.8, 1.8], 2.1)
+    rows = format_threads([one, two]).splitlines()
+    assert rows[2] == "| fastdet 1 thread | 4.00 | 3.80 | 3.60 | 5% | 1.0x | 3.90 | 1.0x |"
+    assert rows[3] == ("| fastdet 2 threads | 2.50 | 2.00 / 1.90 | 1.80 / 1.80 | 22% | 1.6x "
+                       "| 2.10 | 1.9x |")
+    assert format_threads([result("reference", [2.0])]) == ""
 
 
 def test_missing_opencv_peer_is_a_note_not_a_failure(model, monkeypatch, tmp_path):

@@ -173,7 +173,7 @@ def test_full_width_regions_at_scale_one_are_scored_in_place(random_model):
     assert np.shares_memory(detector.scorer.scaled_region(region, plan, 3), prepared.converted)
     in_place = detector.score_scale(prepared, plan)
     copied = Detector(random_model, threads=1)
-    copied.scorer.scaled_region = lambda region, plan, channels: np.array(region)
+    copied.scorer.scaled_region = lambda region, plan, channels, *band: np.array(region)
     np.testing.assert_array_equal(copied.score_scale(prepared, plan), in_place)
 
 
@@ -228,3 +228,45 @@ def test_shape_correction_scales_about_the_centre(random_model):
     out = detector.box_finder.reshape_boxes(boxes, (1280, 720))
     assert out[0].tolist() == [75, 150, 225, 200]   # centre y moved by 25, half height 25
     assert out[1].tolist() == [0, 20, 50, 40]       # clipped to the frame
+
+
+def test_two_thread_tasks_cut_the_largest_scale_into_whole_tiles(random_model):
+    detector = Detector(random_model, threads=1, preload=False)
+    plans = detector.plans((1280, 720))
+    single = detector.scorer.bands(plans, 1)
+    assert sorted(task.index for task in single) == list(range(len(plans)))
+    assert {task.kind for task in single} == {"whole"}
+    tasks = detector.scorer.bands(plans, 2)
+    largest = max(range(len(plans)),
+                  key=lambda i: plans[i].scaled_size[0] * plans[i].scaled_size[1])
+    rows = sorted((task.first, task.stop) for task in tasks
+                  if task.index == largest and task.kind == "rows")
+    assert len(rows) == 2
+    plan = plans[largest]
+    used = (plan.grid[0] - 1) * plan.step_cells * 8 + 64
+    assert rows[0][0] == 0 and rows[0][1] == rows[1][0] and rows[1][1] == used
+    assert rows[0][1] % detector.scorer._row_alignment(plan) == 0
+    # Its windows are scored last, after its rows.
+    assert tasks[-1].kind == "windows" and tasks[-1].index == largest
+
+
+def test_a_failing_task_fails_the_frame_without_hanging(random_model, monkeypatch):
+    import numba
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("NUMBA_NUM_THREADS caps the detector at one thread")
+    detector = Detector(random_model, threads=2)
+    frame = np.random.default_rng(3).integers(0, 256, (720, 1280, 3), dtype=np.uint8)
+    detector.hits(frame)
+    original = detector.scorer.run
+
+    def run(task, *args):
+        if task.kind == "rows" and task.first > 0:
+            raise RuntimeError("task failed")
+        return original(task, *args)
+
+    monkeypatch.setattr(detector.scorer, "run", run)
+    try:
+        with pytest.raises(RuntimeError, match="task failed"):
+            detector.hits(frame)
+    finally:
+        Detector(random_model, threads=1)  # restore the thread count for later tests

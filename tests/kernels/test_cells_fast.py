@@ -175,3 +175,22 @@ def test_parallel_fast_path_equals_serial(layout):
         assert_close(parallel, to_phase_layout(table_path(image), 4, 2))
     else:
         assert_close(parallel, table_path(image))
+
+
+def test_the_orientation_table_is_kept_beside_the_kernels(tmp_path, monkeypatch):
+    """Saved once, loaded afterwards; a damaged copy is rebuilt, never trusted."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    expected = orientation_lut(9)
+    np.testing.assert_array_equal(hog._bin_lut.__wrapped__(9), expected)
+    saved = hog._lut_path(9)
+    assert saved.parent == tmp_path and saved.exists()
+    np.testing.assert_array_equal(np.load(saved)["lut"], expected)
+    saved.write_bytes(b"not a table")
+    np.testing.assert_array_equal(hog._bin_lut.__wrapped__(9), expected)
+    np.testing.assert_array_equal(np.load(saved)["lut"], expected)
+    # A copy whose content changed but still parses is caught by its checksum.
+    flipped = expected.copy()
+    flipped[1000] ^= 1
+    np.savez(saved, lut=flipped, sha256=np.load(saved)["sha256"])
+    np.testing.assert_array_equal(hog._bin_lut.__wrapped__(9), expected)
+    np.testing.assert_array_equal(np.load(saved)["lut"], expected)

@@ -1,0 +1,50 @@
+"""``fastdet warmup``: compile every kernel once (building an image, starting a worker)."""
+
+from __future__ import annotations
+
+import time
+
+
+def add_warmup_parser(subparsers):
+    """Register ``warmup`` on the ``fastdet`` command's sub-parsers."""
+    from ..kernels.warmup import FAMILIES
+
+    warmup = subparsers.add_parser(
+        "warmup", help="compile (or load) every kernel once and say what it took",
+        description="Compile the Numba kernels into the kernel cache (or load them if they are "
+                    "there), so that later commands start at once.  Prints one line per kernel "
+                    "family.")
+    warmup.add_argument("--families", nargs="+", choices=sorted(FAMILIES), metavar="F",
+                        help=f"only these families (default: all: {', '.join(FAMILIES)})")
+    warmup.add_argument("--processes", type=int, default=None, metavar="N",
+                        help="compile uncompiled families in up to 2 processes (default: 2 "
+                             "with two or more cores; 1: this process only)")
+    warmup.set_defaults(handler=cmd_warmup)
+    return warmup
+
+
+def cmd_warmup(args):
+    """Warm the families and print what each cost; returns the exit code."""
+    from ..errors import InputError
+    from ..kernels.cache import kernel_cache_dir
+    from ..kernels.warmup import FAMILIES, compiled_here, warm
+
+    if args.processes is not None and args.processes < 1:
+        raise InputError(f"--processes must be at least 1, got {args.processes}")
+    names = args.families or list(FAMILIES)
+    print(f"kernel cache: {kernel_cache_dir()}")
+    start = time.perf_counter()
+    seconds = warm(names, processes=args.processes)
+    total = time.perf_counter() - start
+    helper = seconds.pop("helper", {})
+    print("| family | kernels were | seconds |")
+    print("|---|---|---:|")
+    for name in names:
+        if name in helper:
+            print(f"| {name} | compiled (helper process) | {helper[name]:.2f} |")
+        else:
+            what = "compiled" if compiled_here(name) else "loaded from the cache"
+            print(f"| {name} | {what} | {seconds[name]:.2f} |")
+    print(f"\n{len(names)} families ready in {total:.1f} s"
+          + (f" ({len(helper)} compiled by a second process)" if helper else ""))
+    return 0

@@ -1,0 +1,274 @@
+"""Compile (or load from the cache) each kernel family once, on tiny inputs.
+
+Numba compiles a kernel at its first call, for the types of that call.  Each
+function of :data:`FAMILIES` calls one family's kernels the way the detector
+calls them (the same dtypes, dimensions, layouts and argument kinds) on
+inputs a few pixels wide, so that afterwards a detection finds every kernel
+it needs compiled (a test holds the detector to that).  With a filled cache
+that is a load from disk; with an empty one it is the compile, which
+:func:`warm` can spread over a second process (:func:`cold_families`).
+
+Used by ``fastdet warmup`` (compile everything once, e.g. while building a
+Docker image or starting a cluster worker) and by
+:class:`fastdet.detector.detector.Detector`, which loads its families in a
+background thread as soon as it is created.
+
+``python -m fastdet.kernels.warmup FAMILY...`` compiles the named families
+and prints one JSON line of seconds per family.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+#: CPU seconds each family took to compile on the development machine (empty
+#: cache, a process of its own, Numba's own helpers included);
+#: :func:`split_families` balances two processes with these weights.
+COMPILE_WEIGHTS = {"label": 4.4, "score": 2.3, "colour": 1.9, "heat": 1.8, "resize": 1.6,
+                   "split": 1.6, "hog": 1.2, "convert": 0.6, "track": 1.2, "hog_api": 0.8}
+
+
+def _frame_band(height, width):
+    """A BGR frame's full-width band, as the detector slices it."""
+    frame = np.random.default_rng(0).integers(0, 256, (height + 4, width, 3), dtype=np.uint8)
+    return frame[2:2 + height, 0:width]
+
+
+def _warm_convert():
+    from .convert import bgr_to_hls
+    bgr_to_hls(_frame_band(4, 16))
+
+
+def _warm_resize():
+    from .resize import resize_linear
+    converted = np.ascontiguousarray(_frame_band(12, 40))
+    # A column-sliced region (strided rows) resized up, and a full-width one
+    # halved exactly: the two kernels the default search runs.
+    region = converted[1:11, 4:36]
+    resize_linear(region, (48, 15), out=np.empty((15, 48, 3), np.uint8))
+    resize_linear(converted[0:12], (20, 6), out=np.empty((6, 20, 3), np.uint8))
+
+
+def _warm_hog():
+    from .hog import cell_histograms, phase_layout_shape
+    from .score import phase_scoring_pad
+    image = np.ascontiguousarray(_frame_band(24, 48))
+    pad = phase_scoring_pad(6, 2, (2, 2))
+    out = np.empty(phase_layout_shape(3, 6, 3, 9, 2, pad), np.float32)
+    cell_histograms(image, (8, 8), 9, out=out, phase_step=2, phase_pad=pad)
+
+
+def _warm_score():
+    from .score import (add_hog_scores_from_phase_cells, add_spatial_scores,
+                        add_tile_window_sums, phase_scoring_pad)
+    pad = phase_scoring_pad(16, 2, (2, 2))
+    cells = np.zeros((16, 3, 9, 2 * 8 + pad), np.float32)
+    weights = np.zeros((7, 7, 108), np.float32)
+    scores = np.zeros((5, 5), np.float32)
+    add_hog_scores_from_phase_cells(cells, 16, (2, 2), "L2-Hys", weights, 2, scores)
+    add_spatial_scores(np.zeros((40, 40, 3), np.float32), np.zeros((32, 32, 3), np.float32),
+                       8, scores[:2, :2].copy())
+    add_tile_window_sums(np.zeros((16, 16), np.float32), 8, 2, scores)
+
+
+def _warm_colour():
+    from .colour import colour_maps
+    image = np.ascontiguousarray(_frame_band(16, 32))
+    lut = np.ascontiguousarray(np.repeat(np.ones((3, 32), np.float32), 8, axis=1))
+    colour_maps(image, lut, 8, 2)
+
+
+def _warm_heat():
+    from .heat import box_heat_region
+    boxes = np.array([[2, 2, 10, 10], [6, 4, 14, 12]], np.int32)
+    box_heat_region(boxes, np.ones(2, np.float32), 32, 16)
+
+
+def _two_blob_heat():
+    heat = np.zeros((24, 40), np.float32)
+    heat[4:20, 2:16] = 2.0
+    heat[4:20, 20:34] = 2.0
+    heat[10:14, 16:20] = 1.5
+    return heat
+
+
+def _warm_label():
+    from .label import heat_blobs
+    heat_blobs(_two_blob_heat(), 0, 0, 1.0, True, True, np.float32(0.3), 8, 4,
+               np.linspace(0.2, 0.8, 5))
+
+
+def _warm_split():
+    from .label import component_boxes, label_components, split_component, split_levels
+    heat = _two_blob_heat()
+    levels = np.linspace(0.2, 0.8, 5)
+    labels, count = label_components(heat > 1.0, 8)
+    component_boxes(labels, count)
+    split = split_levels(np.float32(2.0), 1.0, levels)
+    mask = np.ascontiguousarray(labels == 1).view(np.uint8)
+    split_component(np.ascontiguousarray(heat), mask, split, 4, 4, 8)
+
+
+def _warm_track():
+    from .patch import (grey_thumbnail, mask_overlap_search, saturation_mask,
+                        sum_squared_difference)
+    patch = np.ascontiguousarray(_frame_band(16, 16))
+    mask = saturation_mask(patch, 100)
+    mask_overlap_search(mask, mask, (8, 8), 2, 1)
+    thumb = grey_thumbnail(patch, 4)
+    sum_squared_difference(thumb, thumb)
+
+
+def _warm_hog_api():
+    from .blocks import normalize_blocks
+    from .hog import cell_histograms
+    grey = np.ascontiguousarray(_frame_band(24, 24)[:, :, :1])
+    normalize_blocks(cell_histograms(grey, (8, 8), 9), (2, 2), "L2-Hys")
+
+
+#: Each family's warm-up, by name.  "label" is what every detection runs
+#: (heat_blobs); "split" the full-resolution split of a blob holding two cars.
+FAMILIES = {"convert": _warm_convert, "resize": _warm_resize, "hog": _warm_hog,
+            "score": _warm_score, "colour": _warm_colour, "heat": _warm_heat,
+            "label": _warm_label, "split": _warm_split, "track": _warm_track,
+            "hog_api": _warm_hog_api}
+
+#: The families every detection with the default feature options runs.
+DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "heat", "label")
+
+#: One dispatcher per family whose cache entry tells whether the family was
+#: compiled before (see :func:`cold_families`): module, name.
+_PROBES = {"convert": ("convert", "_bgr_to_hls"), "resize": ("resize", "_resize"),
+           "hog": ("hog", "_cell_rows_u8_fast"), "score": ("score", "_add_hog_scores_phase"),
+           "colour": ("colour", "_colour_maps"), "heat": ("heat", "box_heat_region"),
+           "label": ("label", "heat_blobs"), "split": ("label", "split_component"),
+           "track": ("patch", "mask_overlap_search"),
+           "hog_api": ("blocks", "_normalize_serial")}
+
+
+def _probe(name):
+    import importlib
+
+    module_name, attribute = _PROBES[name]
+    return getattr(importlib.import_module(f"{__package__}.{module_name}"), attribute, None)
+
+
+def compiled_here(name):
+    """Whether this process compiled family ``name``'s main kernel (rather than loading it)."""
+    stats = getattr(_probe(name), "stats", None)
+    return bool(stats is not None and stats.cache_misses and not stats.cache_hits)
+
+
+def cold_families(names):
+    """The families among ``names`` that have nothing in the kernel cache yet.
+
+    A family counts as cold when its main kernel has neither a compiled
+    version in this process nor an index file in the cache folder (Numba
+    writes one per cached function).  Stale entries (edited sources) count
+    as warm: Numba recompiles those itself.
+    """
+    cold = []
+    for name in names:
+        dispatcher = _probe(name)
+        if dispatcher is None or dispatcher.signatures:
+            continue
+        index = getattr(getattr(getattr(dispatcher, "_cache", None), "_cache_file", None),
+                        "_index_path", None)
+        if index is not None and not os.path.exists(index):
+            cold.append(name)
+    return cold
+
+
+#: Seconds a helper process needs before it compiles (Python, NumPy, Numba, fastdet).
+HELPER_START_SECONDS = 0.8
+
+
+def split_families(names):
+    """``(here, helper)``: ``names`` in two groups that finish together.
+
+    Greedy, heaviest first, each family to the group that would end
+    sooner; the helper's group starts :data:`HELPER_START_SECONDS` late.
+    """
+    groups = ([], [])
+    totals = [0.0, HELPER_START_SECONDS]
+    for name in sorted(names, key=lambda n: -COMPILE_WEIGHTS.get(n, 1.0)):
+        side = 0 if totals[0] <= totals[1] else 1
+        groups[side].append(name)
+        totals[side] += COMPILE_WEIGHTS.get(name, 1.0)
+    return groups
+
+
+def _helper_process(names):
+    """A Python process compiling ``names`` into the same cache folder (the
+    cache module has put it in ``NUMBA_CACHE_DIR``, which the child inherits)."""
+    return subprocess.Popen([sys.executable, "-m", __name__, *names],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+
+
+def warm(names=DETECTION_FAMILIES, processes=None):
+    """Compile or load the kernel families ``names``; returns seconds per family.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Keys of :data:`FAMILIES`.
+    processes : int, optional
+        With 2 or more and families still uncompiled (:func:`cold_families`),
+        about half of those are compiled by a second Python process while
+        this one compiles the rest, then loaded here from the cache.
+        ``None``: 2 when there are two or more CPU cores.
+
+    Returns
+    -------
+    dict
+        ``{family: seconds}`` in this process (a family compiled by the
+        helper process shows its load time here; see ``helper``), and
+        ``"helper"``: ``{family: seconds}`` the helper process reported.
+    """
+    unknown = [name for name in names if name not in FAMILIES]
+    if unknown:
+        raise ValueError(f"unknown kernel families {unknown}; known: {sorted(FAMILIES)}")
+    if processes is None:
+        processes = 2 if (os.cpu_count() or 1) > 1 else 1
+    helper, remote = None, []
+    if processes > 1:
+        cold = cold_families(names)
+        if len(cold) > 1:
+            local, remote = split_families(cold)
+            helper = _helper_process(remote)
+    seconds = {}
+    for name in sorted(names, key=lambda n: n in remote):
+        if name in remote and helper is not None:
+            output, _ = helper.communicate()
+            helper_seconds = _parse_report(output) if helper.returncode == 0 else {}
+            helper = None
+        start = time.perf_counter()
+        FAMILIES[name]()
+        seconds[name] = time.perf_counter() - start
+    if remote:
+        seconds["helper"] = helper_seconds
+    return seconds
+
+
+def _parse_report(output):
+    try:
+        return json.loads(output.decode().strip().splitlines()[-1])
+    except (ValueError, IndexError):
+        return {}
+
+
+def main(argv=None):
+    """``python -m fastdet.kernels.warmup FAMILY...``: compile, print seconds as JSON."""
+    names = (sys.argv[1:] if argv is None else argv) or list(FAMILIES)
+    print(json.dumps(warm(names, processes=1)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,102 @@
+"""The kernel warm-up: it compiles what a detection needs, and can use a second process."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from fastdet.cli.app import EXIT_ERROR, main
+from fastdet.kernels import warmup
+
+_AFTER_WARMUP = r"""
+import glob, json, sys
+import cv2
+import fastdet
+from fastdet.kernels import warmup
+from numba.core.registry import CPUDispatcher
+import fastdet.kernels.colour, fastdet.kernels.convert, fastdet.kernels.heat, fastdet.kernels.hog
+import fastdet.kernels.label, fastdet.kernels.resize, fastdet.kernels.score
+
+def signatures():
+    found = set()
+    for name, module in sys.modules.items():
+        if name.startswith("fastdet.kernels."):
+            for attribute, value in vars(module).items():
+                if isinstance(value, CPUDispatcher):
+                    found |= {(name, attribute, str(sig)) for sig in value.signatures}
+    return found
+
+warmup.warm(warmup.DETECTION_FAMILIES, processes=1)
+before = signatures()
+detector = fastdet.Detector(threads=int(sys.argv[2]), preload=False)
+frames = [cv2.imread(path) for path in sorted(glob.glob(sys.argv[1] + "/*.jpg"))]
+for frame in frames:
+    detector(frame)
+print(json.dumps({"new": sorted(map(list, signatures() - before)), "before": len(before)}))
+"""
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_detection_needs_nothing_the_warmup_did_not_load(data_dir, threads):
+    """In a fresh process: after the warm-up, detecting loads and compiles no other kernel."""
+    completed = subprocess.run(
+        [sys.executable, "-c", _AFTER_WARMUP, str(data_dir / "test_images"), str(threads)],
+        capture_output=True, text=True, timeout=900)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    result = json.loads(completed.stdout.strip().splitlines()[-1])
+    assert result["before"] >= len(warmup.DETECTION_FAMILIES)
+    assert result["new"] == [], result["new"]
+
+
+def test_split_families_balances_the_weights():
+    names = list(warmup.FAMILIES)
+    here, helper = warmup.split_families(names)
+    assert sorted(here + helper) == sorted(names)
+    weight = lambda group: sum(warmup.COMPILE_WEIGHTS[name] for name in group)  # noqa: E731
+    heaviest = max(warmup.COMPILE_WEIGHTS.values())
+    # The helper starts late by its start-up; the two groups end within one family.
+    assert abs(weight(here) - (weight(helper) + warmup.HELPER_START_SECONDS)) <= heaviest
+
+
+def test_unknown_family_is_refused():
+    with pytest.raises(ValueError, match="unknown kernel families"):
+        warmup.warm(["nonsense"])
+
+
+def test_cold_families_compiled_by_two_processes(tmp_path):
+    """With an empty cache, ``fastdet warmup`` compiles half the families in a helper
+    process; a second run finds them all in the cache."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    command = [sys.executable, "-c", "import sys; from fastdet.cli import main; "
+               "sys.exit(main(sys.argv[1:]))", "warmup", "--families", "convert", "heat",
+               "--processes", "2"]
+    first = subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
+    assert first.returncode == 0, first.stderr[-3000:]
+    assert "compiled (helper process)" in first.stdout
+    assert "| convert | compiled" in first.stdout and "| heat | compiled" in first.stdout
+    second = subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
+    assert second.returncode == 0, second.stderr[-3000:]
+    assert second.stdout.count("loaded from the cache") == 2, second.stdout
+
+
+def test_warmup_command_reports_every_family(capsys):
+    assert main(["warmup", "--families", "heat", "label", "--processes", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "| heat |" in out and "| label |" in out and "2 families ready" in out
+
+
+def test_warmup_rejects_bad_processes(capsys):
+    assert main(["warmup", "--processes", "0"]) == EXIT_ERROR
+    assert capsys.readouterr().err.startswith("fastdet: error: --processes")
+
+
+def test_detector_waits_for_its_preload():
+    import fastdet
+
+    detector = fastdet.Detector(threads=1)
+    frame = np.zeros((720, 1280, 3), np.uint8)
+    assert len(detector(frame)) == 0
+    assert detector._loader is None  # joined by the first detection
