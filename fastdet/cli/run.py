@@ -16,7 +16,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..video.detection_files import FORMATS
-from .common import compile_notice
+from .common import compile_notice, make_pipeline
 
 
 def add_run_parser(subparsers):
@@ -117,23 +117,6 @@ def _same_file(a, b):
     return Path(a).resolve() == Path(b).resolve()
 
 
-def _pipeline(args):
-    from ..detector.config import load_config
-    from ..detector.detector import Detector
-    from ..video.config import load_track_config
-    from ..video.pipeline import VideoPipeline
-
-    track_config = load_track_config(args.config)
-    if args.every is not None:
-        if args.every < 1:
-            raise InputError(f"--every must be at least 1, got {args.every}")
-        track_config = track_config.replace(every=args.every)
-    if args.track:
-        track_config = track_config.replace(tracking=True)
-    detector = Detector(model=args.model, config=load_config(args.config), threads=args.threads)
-    return VideoPipeline(detector, track_config)
-
-
 def cmd_run(args):
     """Run detection and tracking over a video (the ``run`` command).
 
@@ -167,7 +150,7 @@ def cmd_run(args):
         # Problems with the input, then with the model or config, then with
         # the outputs: each is reported before any output file exists.
         reader = stack.enter_context(VideoReader(args.video, args.start, args.end))
-        pipeline = _pipeline(args)
+        pipeline = make_pipeline(args)
         video_out = det_out = None
         if out is not None:
             video_out = stack.enter_context(VideoWriter(out, reader.fps, reader.size,
