@@ -4,12 +4,11 @@ A TOML file only lists what it changes::
 
     [search]
     decision_threshold = 0.3
+    horizon = 0.55             # the horizon row, as a fraction of the frame height
 
-    [[search.scales]]          # giving scales replaces the whole list
-    window = 64
-    overlap = 0.5
-    x = [0, 1280]
-    y = [380, 660]
+    [[search.windows]]         # giving windows replaces the whole list
+    size = 0.08                # window side, as a fraction of the frame height
+    overlap = 0.75
 
     [heat]
     threshold = 2
@@ -17,13 +16,28 @@ A TOML file only lists what it changes::
     [boxes]
     min_size = 24
 
-Unknown sections or keys are rejected with their name.  Coordinates are in
-pixels of a ``search.reference_size`` frame (1280x720) and scaled
-proportionally for other frame sizes.
+Unknown sections or keys are rejected with their name.
+
+The default search is laid out relative to the frame and its horizon, so the
+same settings serve any camera and frame size: on a flat road a vehicle's
+width is proportional to how far below the horizon it stands, whatever the
+lens, so each window size is searched only in the band of rows where a
+vehicle of its size can stand (:class:`WindowConfig`; the plan is
+:func:`fastdet.detector.plan.plan_scales`), and the small windows, which
+only fit far vehicles, only near the middle of the frame, where the road
+vanishes.  An explicit list of ``[[search.scales]]`` (window, overlap and
+region in pixels of a ``search.reference_size`` frame, 1280x720, scaled
+proportionally for other frame sizes: the form configurations had before)
+replaces the windows; ``fastdet/data/published_search.toml`` is one.
+
+Other pixel settings (``[boxes] min_size``, ``horizon_y``, ``[heat]
+split_min_size``, ``[track] search_radius``) are given for a
+``search.reference_size`` frame and scaled with the frame.
 
 The default thresholds and box-shape correction are the ones ``fastdet tune``
-chose for the bundled model on the annotated frames of the test video
-(``tools/build_default_model.py``); the test images play no part in them.
+chose for the bundled model on the development frames of the annotated
+videos (``tools/build_default_model.py``); the test images play no part in
+them.
 """
 
 from __future__ import annotations
@@ -40,6 +54,11 @@ else:  # pragma: no cover - exercised on Python 3.10 only
     import tomli as tomllib
 
 from ..errors import ConfigError
+
+
+def _number(name, value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"{name} must be a finite number, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -77,6 +96,36 @@ class ScaleConfig:
                                   f"got {list(span)!r}")
 
 
+@dataclass(frozen=True)
+class WindowConfig:
+    """One window size of the frame-relative search.
+
+    Parameters
+    ----------
+    size : float
+        Window side as a fraction of the frame height.
+    overlap : float
+        Fraction in [0, 1) by which neighbouring windows overlap (both
+        axes); the step is rounded to whole HOG cells.
+
+    Notes
+    -----
+    Where the windows of a size lie follows from :class:`SearchConfig`'s
+    ``horizon``, ``band``, ``margin`` and ``reach``.
+    """
+
+    size: float
+    overlap: float
+
+    def __post_init__(self):
+        _number("search.windows.size", self.size)
+        if not 0 < self.size <= 1:
+            raise ConfigError(f"search.windows.size must be in (0, 1] (a fraction of the frame "
+                              f"height), got {self.size!r}")
+        if not (isinstance(self.overlap, (int, float)) and 0 <= self.overlap < 1):
+            raise ConfigError(f"search.windows.overlap must be in [0, 1), got {self.overlap!r}")
+
+
 #: The five scales of the published pipeline this project starts from
 #: (``fastdet/data/published_search.toml`` restores them).
 PUBLISHED_SCALES = (
@@ -87,16 +136,10 @@ PUBLISHED_SCALES = (
     ScaleConfig(128, 0.75, (0, 1280), (360, 630)),
 )
 
-#: The default search: the published scales with the 64-pixel one moved.
-#: Published, it covers only the middle third of the frame (x 426-853) with a
-#: 32-pixel step, so a car 64-100 pixels wide in any other lane falls between
-#: the 48- and 112-pixel scales: the white car of test3 (88x53 at x 872) is
-#: missed.  Here it spans the whole width with the 0.75 overlap of the large
-#: scales, over the band where a 64-pixel car can stand (y 396-500: on a flat
-#: road its bottom edge lies a fixed distance below the horizon; lower down,
-#: cars are larger and the 112- and 128-pixel scales cover them).  Cost: 159
-#: more windows (1020) and 0.35 ms per frame; see the README's quality section.
-DEFAULT_SCALES = (
+#: The pixel scales fastdet searched by default before the frame-relative
+#: search: the published ones with the 64-pixel scale over the whole width
+#: at overlap 0.75 and y 396-500 (``fastdet/data/previous_search.toml``).
+PREVIOUS_SCALES = (
     PUBLISHED_SCALES[0],
     PUBLISHED_SCALES[1],
     ScaleConfig(64, 0.75, (0, 1280), (396, 500)),
@@ -104,33 +147,94 @@ DEFAULT_SCALES = (
     PUBLISHED_SCALES[4],
 )
 
+#: The default window sizes: 32, 48, 64, 96 and 128 pixels on a 720-row
+#: frame, as fractions of the frame height (0.0444 ... 0.1778).  At 720
+#: rows the 64-pixel windows are read from the frame without resizing.
+DEFAULT_WINDOWS = (
+    WindowConfig(32 / 720, 0.5),
+    WindowConfig(48 / 720, 0.5),
+    WindowConfig(64 / 720, 0.75),
+    WindowConfig(96 / 720, 0.75),
+    WindowConfig(128 / 720, 0.75),
+)
+
 
 @dataclass(frozen=True)
 class SearchConfig:
     """Where and how windows are searched and which count as hits.
 
+    The default layout is relative to the frame: each of ``windows`` is
+    searched in a band of rows around the ``horizon`` (where a vehicle of
+    the window's size stands on a flat road) and within ``reach`` window
+    sides of the frame's middle column.  A non-empty ``scales`` lays the
+    search out in pixels instead (the windows are then not used).
+
     Parameters
     ----------
+    windows : tuple of WindowConfig
+        Window sizes of the frame-relative search.
+    horizon : float
+        Row of the horizon (the vanishing point of the road) as a fraction
+        of the frame height from the top.
+    band : tuple of float
+        ``(low, high)``: a window's top edge lies between ``horizon + low *
+        side`` and ``horizon + high * side``.  A vehicle's width is about
+        twice its bottom edge's distance below the horizon, whatever the
+        lens, so a window framing it has its top edge 0.6 to 0.2 sides above
+        the horizon (trucks and near, oblique cars at the high end).
+    margin : float
+        Rows searched beyond every band, above and below, as a fraction of
+        the frame height: the camera pitches and the road is not flat.
+    reach : float
+        Window centres lie at most this many window sides left or right of
+        the frame's middle column: a vehicle ``n`` of its own widths beside
+        the road's vanishing point is ``n`` vehicle widths to the side, so
+        10 reaches five lanes either way.  Large windows reach the frame
+        edges anyway.
     scales : tuple of ScaleConfig
+        An explicit pixel layout (empty: the frame-relative one).
     reference_size : tuple of int
-        ``(width, height)`` the scale coordinates refer to.
+        ``(width, height)`` the pixel settings (``scales``, the box filters,
+        ...) refer to.
     decision_threshold : float
         A window is a hit when its SVM margin exceeds this.
     """
 
-    scales: tuple = DEFAULT_SCALES
+    windows: tuple = DEFAULT_WINDOWS
+    horizon: float = 0.58
+    band: tuple = (-0.6, -0.2)
+    margin: float = 0.02
+    reach: float = 10.0
+    scales: tuple = ()
     reference_size: tuple = (1280, 720)
     decision_threshold: float = -0.25
 
     def __post_init__(self):
+        object.__setattr__(self, "windows", tuple(self.windows))
+        object.__setattr__(self, "band", tuple(self.band))
         object.__setattr__(self, "scales", tuple(self.scales))
         object.__setattr__(self, "reference_size", tuple(self.reference_size))
-        if not self.scales:
-            raise ConfigError("search.scales must list at least one scale")
+        if not self.scales and not self.windows:
+            raise ConfigError("search.windows (or search.scales) must list at least one size")
         size = self.reference_size
         if len(size) != 2 or not all(isinstance(v, int) and v > 0 for v in size):
             raise ConfigError(f"search.reference_size must be [width, height], got {list(size)!r}")
         _number("search.decision_threshold", self.decision_threshold)
+        _number("search.horizon", self.horizon)
+        if not 0 < self.horizon < 1:
+            raise ConfigError(f"search.horizon must be in (0, 1) (a fraction of the frame "
+                              f"height), got {self.horizon!r}")
+        if (len(self.band) != 2 or not all(isinstance(v, (int, float)) and math.isfinite(v)
+                                           for v in self.band)
+                or not self.band[0] <= self.band[1]):
+            raise ConfigError(f"search.band must be [low, high] with low <= high, "
+                              f"got {list(self.band)!r}")
+        _number("search.margin", self.margin)
+        if self.margin < 0:
+            raise ConfigError(f"search.margin must be >= 0, got {self.margin!r}")
+        if not (isinstance(self.reach, (int, float)) and not isinstance(self.reach, bool)
+                and self.reach > 0):
+            raise ConfigError(f"search.reach must be a number > 0, got {self.reach!r}")
 
 
 @dataclass(frozen=True)
@@ -245,22 +349,36 @@ class DetectorConfig:
             raise ConfigError(f"unknown config section(s): {', '.join(unknown)}")
         built = {}
         for name, section_cls in sections.items():
-            values = dict(data.get(name, {}))
-            if name == "search" and "scales" in values:
-                values["scales"] = tuple(_build(ScaleConfig, scale, "search.scales")
-                                         for scale in values["scales"])
+            values = _table(data.get(name, {}), name)
+            if name == "search":
+                values = _search_values(values)
             built[name] = _build(section_cls, values, name)
         return cls(**built)
 
 
-def _number(name, value):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+def _search_values(values):
+    """``[search]`` with its lists of tables built; listing scales drops the windows."""
+    if "scales" in values and "windows" in values:
+        raise ConfigError("search.scales (pixels) and search.windows (fractions of the frame) "
+                          "are two layouts of the search: list one of them")
+    for key, item_cls in (("scales", ScaleConfig), ("windows", WindowConfig)):
+        if key in values:
+            if not isinstance(values[key], list):
+                raise ConfigError(f"search.{key} must be a list of tables ([[search.{key}]])")
+            values[key] = tuple(_build(item_cls, _table(item, f"search.{key}"), f"search.{key}")
+                                for item in values[key])
+    if "scales" in values:
+        values["windows"] = ()
+    return values
+
+
+def _table(values, section):
+    if not isinstance(values, dict):
+        raise ConfigError(f"[{section}] must be a table")
+    return dict(values)
 
 
 def _build(section_cls, values, section):
-    if not isinstance(values, dict):
-        raise ConfigError(f"[{section}] must be a table")
     known = {f.name for f in dataclasses.fields(section_cls)}
     unknown = sorted(set(values) - known)
     if unknown:
