@@ -19,7 +19,7 @@ from ..detector.config import DetectorConfig
 from ..detector.detector import Detector
 from ..detector.scoring import Hits
 from ..evaluation.metrics import evaluate
-from .mine import annotated_frames
+from .mine import annotated_frames, paired_sources
 
 #: Box shape corrections searched for the best threshold combinations.
 SHAPE_GRID = {
@@ -77,10 +77,12 @@ def tune(model, sources, annotations, base_config=None, grid=None, log=None):
     Parameters
     ----------
     model : Model
-    sources : iterable of str or Path
-        Videos (annotated as ``frame<N>``) and/or images.
+    sources : iterable
+        Videos (annotated as ``frame<N>``) and/or images, each a path or a
+        ``(path, annotations)`` pair.
     annotations : dict
-        From :func:`fastdet.evaluation.annotations.load_annotations`.
+        From :func:`fastdet.evaluation.annotations.load_annotations`, for
+        the sources given as bare paths.
     base_config : DetectorConfig, optional
         Scales and box filters used for every combination.
     grid : dict, optional
@@ -96,11 +98,12 @@ def tune(model, sources, annotations, base_config=None, grid=None, log=None):
     lowest = min(grid["decision_threshold"])
     scoring = Detector(model, dataclasses.replace(
         base, search=dataclasses.replace(base.search, decision_threshold=lowest)))
-    frames = {}
-    for source in sources:
-        for key, frame in annotated_frames(source, annotations):
-            frames[key] = (scoring.hits(frame), (frame.shape[1], frame.shape[0]))
-    truth = {key: annotations[key] for key in frames}
+    frames, truth = {}, {}
+    for number, (source, truth_of) in enumerate(paired_sources(sources, annotations)):
+        for key, frame in annotated_frames(source, truth_of):
+            # Keyed by source too: two videos may both have a frame0010.
+            frames[number, key] = (scoring.hits(frame), (frame.shape[1], frame.shape[0]))
+            truth[number, key] = truth_of[key]
     results = []
     for threshold, heat_threshold, weighting, fraction in itertools.product(
             grid["decision_threshold"], grid["heat_threshold"], grid["weighting"],
