@@ -100,8 +100,10 @@ def _track_video(args, video, annotations, cover):
     from ..video.evaluate import track_annotated_frames
 
     pipeline = make_pipeline(args)
-    with compile_notice():
-        pipeline.detector.warm_up(_first_frame(video))
+    warm_up = getattr(pipeline.detector, "warm_up", None)
+    if warm_up is not None:
+        with compile_notice():
+            warm_up(_first_frame(video))
     tracked = track_annotated_frames(pipeline, video, annotations)
     results = {name: (d.xyxy, d.score) for name, d in tracked.items()}
     with_ids = all(obj["id"] is not None

@@ -40,7 +40,8 @@ class Photometric:
 
     Each effect is applied to a copy with probability ``probability``, its
     strength drawn uniformly from its range, in this order: colour
-    temperature, brightness, contrast, blur, resolution, JPEG.
+    temperature, brightness, contrast, blur, resolution, JPEG.  ``None``
+    turns an effect off.
 
     Parameters
     ----------
@@ -137,32 +138,41 @@ def photometric_crop(crop, settings, rng):
     -------
     ndarray of uint8, shape (S, S, 3)
     """
+    # Every coin and strength is drawn, used or not, so that the draws of
+    # one crop never depend on another's or on which effects are off.
     draws = rng.random(6) < settings.probability
-    temperature = rng.uniform(-settings.temperature, settings.temperature)
-    gain = rng.uniform(*settings.brightness)
-    contrast = rng.uniform(*settings.contrast)
-    sigma = rng.uniform(*settings.blur)
-    side = int(rng.integers(settings.resolution[0], settings.resolution[1] + 1))
-    quality = int(rng.integers(settings.jpeg[0], settings.jpeg[1] + 1))
+    strengths = [rng.uniform(-1, 1), rng.random(), rng.random(), rng.random(), rng.random(),
+                 rng.random()]
+    on = [setting is not None and draw for setting, draw in zip(
+        (settings.temperature, settings.brightness, settings.contrast, settings.blur,
+         settings.resolution, settings.jpeg), draws)]
     image = crop.astype(np.float32)
-    if draws[0]:
-        image *= np.array([1 - temperature, 1.0, 1 + temperature], np.float32)
-    if draws[1]:
-        image *= gain
-    if draws[2]:
+    if on[0]:
+        shift = settings.temperature * strengths[0]
+        image *= np.array([1 - shift, 1.0, 1 + shift], np.float32)
+    if on[1]:
+        image *= _within(settings.brightness, strengths[1])
+    if on[2]:
         mean = image.mean()
-        image = mean + (image - mean) * contrast
+        image = mean + (image - mean) * _within(settings.contrast, strengths[2])
     out = np.clip(np.rint(image), 0, 255).astype(np.uint8)
     size = crop.shape[1]
-    if draws[3]:
-        out = cv2.GaussianBlur(out, (0, 0), sigma)
-    if draws[4] and side < size:
+    if on[3] and _within(settings.blur, strengths[3]) > 0:
+        out = cv2.GaussianBlur(out, (0, 0), _within(settings.blur, strengths[3]))
+    side = int(round(_within(settings.resolution, strengths[4]))) if on[4] else size
+    if side < size:
         small = cv2.resize(out, (side, side), interpolation=cv2.INTER_AREA)
         out = cv2.resize(small, (size, size), interpolation=cv2.INTER_LINEAR)
-    if draws[5]:
+    if on[5]:
+        quality = int(round(_within(settings.jpeg, strengths[5])))
         ok, encoded = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, quality])
         out = cv2.imdecode(encoded, cv2.IMREAD_COLOR)
     return out
+
+
+def _within(span, fraction):
+    """The value a fraction of the way from ``span[0]`` to ``span[1]``."""
+    return span[0] + (span[1] - span[0]) * fraction
 
 
 def with_copies(features, copies, mask):

@@ -43,7 +43,7 @@ def stub_pipeline(monkeypatch):
     def build(args):
         config = TrackConfig(every=args.every, tracking=args.track)
         return VideoPipeline(BlockDetector(), config)
-    monkeypatch.setattr(commands_run, "_pipeline", build)
+    monkeypatch.setattr(commands_run, "make_pipeline", build)
 
 
 @pytest.fixture(scope="module")
@@ -228,7 +228,7 @@ def test_ctrl_c_completes_both_outputs(fastdet, monkeypatch, block_video, tmp_pa
                 raise KeyboardInterrupt
             return super().process(frame)
 
-    monkeypatch.setattr(commands_run, "_pipeline",
+    monkeypatch.setattr(commands_run, "make_pipeline",
                         lambda args: Interrupted(BlockDetector(), TrackConfig()))
     out, dets = tmp_path / "o.mp4", tmp_path / "d.jsonl"
     code = fastdet(["run", str(block_video), "--out", str(out), "--detections", str(dets)])
@@ -246,7 +246,7 @@ def test_ctrl_c_before_any_frame_leaves_no_video(fastdet, monkeypatch, block_vid
         def process(self, frame):
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(commands_run, "_pipeline",
+    monkeypatch.setattr(commands_run, "make_pipeline",
                         lambda args: Interrupted(BlockDetector(), TrackConfig()))
     out, dets = tmp_path / "o.mp4", tmp_path / "d.jsonl"
     assert fastdet(["run", str(block_video), "--out", str(out), "--detections", str(dets)]) == 130
