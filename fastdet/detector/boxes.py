@@ -22,6 +22,7 @@ from ..kernels.label import (
     split_levels,
 )
 from .detections import Detections
+from .refine import heat_features, refine_boxes
 
 #: Sub-sampling of the cheap first pass that decides whether a heat blob splits.
 _SPLIT_PROBE = 4
@@ -133,9 +134,20 @@ class BoxFinder:
             out_boxes.append(parts + np.array([x1, y1, x1, y1], dtype=np.int32) + shift)
         return np.concatenate(out_boxes), np.concatenate(out_peaks)
 
-    def finish_boxes(self, boxes, peaks, frame_size):
-        """Shape-correct and filter blob boxes into :class:`Detections`."""
-        boxes = self.reshape_boxes(boxes, frame_size)
+    def finish_boxes(self, boxes, peaks, frame_size, heat=None, origin=(0, 0)):
+        """Refine or shape-correct, then filter blob boxes into :class:`Detections`.
+
+        With ``[boxes] refine`` weights and the ``heat`` (and its
+        ``origin``) the boxes came from, each box's edges are placed by the
+        refinement model (:mod:`fastdet.detector.refine`); otherwise the
+        shape correction is applied.
+        """
+        weights = self.config.boxes.refine
+        if weights and heat is not None and len(boxes):
+            features = heat_features(heat, origin, boxes, self.config.heat.threshold)
+            boxes = _clipped(refine_boxes(boxes, features, weights), frame_size)
+        else:
+            boxes = self.reshape_boxes(boxes, frame_size)
         keep = self.box_filter(boxes, frame_size)
         return Detections(boxes[keep], peaks[keep])
 
@@ -151,15 +163,8 @@ class BoxFinder:
         height = xyxy[:, 3] - xyxy[:, 1]
         half_h = height * cfg.height_scale / 2
         cy = cy + cfg.center_dy * height
-        out = np.stack([cx - half_w, cy - half_h, cx + half_w, cy + half_h], axis=1)
-        out = np.round(out)
-        width, height = frame_size
-        out[:, 0] = np.clip(out[:, 0], 0, width - 1)
-        out[:, 1] = np.clip(out[:, 1], 0, height - 1)
-        # A box keeps at least one pixel after rounding and clipping.
-        out[:, 2] = np.clip(out[:, 2], out[:, 0] + 1, width)
-        out[:, 3] = np.clip(out[:, 3], out[:, 1] + 1, height)
-        return out.astype(np.int32)
+        return _clipped(np.stack([cx - half_w, cy - half_h, cx + half_w, cy + half_h], axis=1),
+                        frame_size)
 
     def box_filter(self, boxes, frame_size):
         """Boolean mask of the boxes that pass the ``[boxes]`` sanity filters."""
@@ -173,3 +178,15 @@ class BoxFinder:
         return ((width >= cfg.min_size * k) & (height >= cfg.min_size * k)
                 & (aspect >= cfg.min_aspect) & (aspect <= cfg.max_aspect)
                 & (boxes[:, 3] > cfg.horizon_y * ky))
+
+
+def _clipped(boxes, frame_size):
+    """Float boxes rounded to whole pixels and clipped to the frame, as int32."""
+    out = np.round(boxes)
+    width, height = frame_size
+    out[:, 0] = np.clip(out[:, 0], 0, width - 1)
+    out[:, 1] = np.clip(out[:, 1], 0, height - 1)
+    # A box keeps at least one pixel after rounding and clipping.
+    out[:, 2] = np.clip(out[:, 2], out[:, 0] + 1, width)
+    out[:, 3] = np.clip(out[:, 3], out[:, 1] + 1, height)
+    return out.astype(np.int32)

@@ -54,6 +54,7 @@ else:  # pragma: no cover - exercised on Python 3.10 only
     import tomli as tomllib
 
 from ..errors import ConfigError
+from .refine import N_FEATURES
 
 
 def _number(name, value):
@@ -304,6 +305,11 @@ class BoxConfig:
         the (wide) cars they cover.  Fitted by ``fastdet tune``.
     center_dy : float
         Vertical shift of the box centre, as a fraction of the box height.
+    refine : tuple of tuple of float
+        Box refinement (:mod:`fastdet.detector.refine`): four rows (x1, y1,
+        x2, y2) of weights over the box's heat features; when given they
+        place the edges instead of the shape correction.  Fitted by
+        ``fastdet tune``; empty: shape correction only.
     """
 
     min_size: float = 24.0
@@ -313,8 +319,17 @@ class BoxConfig:
     width_scale: float = 1.2
     height_scale: float = 0.8
     center_dy: float = 0.05
+    refine: tuple = ()
 
     def __post_init__(self):
+        object.__setattr__(self, "refine", tuple(tuple(row) for row in self.refine))
+        if self.refine and (len(self.refine) != 4 or any(
+                len(row) != N_FEATURES or not all(isinstance(v, (int, float))
+                                                  and not isinstance(v, bool)
+                                                  and math.isfinite(v) for v in row)
+                for row in self.refine)):
+            raise ConfigError(f"boxes.refine must be 4 rows of {N_FEATURES} numbers "
+                              f"(or empty)")
         for name in ("min_size", "min_aspect", "max_aspect", "horizon_y", "width_scale",
                      "height_scale", "center_dy"):
             _number(f"boxes.{name}", getattr(self, name))

@@ -3,9 +3,13 @@
 The decision threshold, the heat threshold, the heat weighting and the box
 refinement interact, so they are chosen together by a grid search that
 maximises detection quality on frames annotated for the purpose (the test
-video's frames, never the evaluation images).  Windows are scored once per
-frame at the lowest decision threshold of the grid; every combination then
-only re-filters hits, re-accumulates heat and re-labels, which is cheap.
+video's frames and the development frames of other footage, never the
+evaluation images or held-out frames).  Windows are scored once per frame at
+the lowest decision threshold of the grid; every combination then only
+re-filters hits, re-accumulates heat and re-labels, which is cheap.  Last,
+the box refinement model (:mod:`fastdet.training.refine`) is fitted to the
+best setting's blobs; the refined setting competes with the others on the
+same ranking.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from ..detector.detector import Detector
 from ..detector.scoring import Hits
 from ..evaluation.metrics import evaluate
 from .mine import annotated_frames, paired_sources
+from .refine import fit_refinement, refinement_samples
 
 #: Box shape corrections searched for the best threshold combinations.
 SHAPE_GRID = {
@@ -55,7 +60,10 @@ class TuningResult:
     recall: float
     ap: float
     mean_iou: float
+    iou_p10: float = 0.0
     stability: int = 0
+    refine: tuple = ()
+    refine_samples: int = 0
 
     @property
     def f1(self):
@@ -122,9 +130,57 @@ def tune(model, sources, annotations, base_config=None, grid=None, log=None):
             result.stability = best.stability
         results.extend(shaped)
     results.sort(key=TuningResult.key, reverse=True)
+    refined = _refined(model, base, frames, truth, results[0])
+    if refined is not None:
+        results.append(refined)
+        results.sort(key=TuningResult.key, reverse=True)
     if log:
         log(f"{len(results)} combinations on {len(frames)} annotated frames")
     return results
+
+
+def _refined(model, base, frames, truth, best):
+    """``best`` with a box refinement fitted to its blobs (None without samples)."""
+    config = _config(base, best)
+    detector = Detector(model, config)
+    blobs = {key: (*_blobs(detector, hits, size, best.decision_threshold), size)
+             for key, (hits, size) in frames.items()}
+    samples = refinement_samples(detector.box_finder, {
+        key: (boxes, heat, origin, size) for key, ((boxes, _), heat, origin, size)
+        in blobs.items()}, truth)
+    weights = fit_refinement(samples)
+    if not len(weights):
+        return None
+    weights = tuple(tuple(float(v) for v in row) for row in weights)
+    finder = BoxFinder(dataclasses.replace(config, boxes=dataclasses.replace(
+        config.boxes, refine=weights)))
+    predictions = {}
+    for key, ((boxes, peaks), heat, origin, size) in blobs.items():
+        detections = finder.finish_boxes(boxes, peaks, size, heat, origin)
+        predictions[key] = (detections.xyxy, detections.score)
+    report = evaluate(predictions, truth)
+    return dataclasses.replace(best, precision=report.precision, recall=report.recall,
+                               ap=report.ap, mean_iou=report.mean_iou, iou_p10=report.iou_p10,
+                               refine=weights, refine_samples=len(samples))
+
+
+def _config(base, result):
+    """``base`` with a result's thresholds and shape correction."""
+    return dataclasses.replace(
+        base,
+        search=dataclasses.replace(base.search, decision_threshold=result.decision_threshold),
+        heat=dataclasses.replace(base.heat, threshold=result.heat_threshold,
+                                 weighting=result.weighting, peak_fraction=result.peak_fraction),
+        boxes=dataclasses.replace(base.boxes, width_scale=result.width_scale,
+                                  height_scale=result.height_scale, center_dy=result.center_dy,
+                                  refine=()))
+
+
+def _blobs(detector, hits, size, threshold):
+    """Blob boxes and peaks of one frame's hits above ``threshold``, and the heat."""
+    kept = _subset(hits, hits.scores > threshold)
+    heat, origin = detector.heat_region(kept, size)
+    return detector.box_finder.heat_components(heat, origin, size), heat, origin
 
 
 def _rate_stability(results, grid):
@@ -156,13 +212,11 @@ def _evaluate(model, base, frames, truth, threshold, heat_threshold, weighting, 
         base,
         search=dataclasses.replace(base.search, decision_threshold=threshold),
         heat=dataclasses.replace(base.heat, threshold=heat_threshold, weighting=weighting,
-                                 peak_fraction=fraction))
+                                 peak_fraction=fraction),
+        boxes=dataclasses.replace(base.boxes, refine=()))
     detector = Detector(model, config)
-    blobs = {}
-    for key, (hits, size) in frames.items():
-        kept = _subset(hits, hits.scores > threshold)
-        heat, origin = detector.heat_region(kept, size)
-        blobs[key] = (detector.box_finder.heat_components(heat, origin, size), size)
+    blobs = {key: (_blobs(detector, hits, size, threshold)[0], size)
+             for key, (hits, size) in frames.items()}
     out = []
     for width_scale, height_scale, center_dy in shapes:
         shaped = BoxFinder(dataclasses.replace(config, boxes=dataclasses.replace(
@@ -175,7 +229,7 @@ def _evaluate(model, base, frames, truth, threshold, heat_threshold, weighting, 
         report = evaluate(predictions, truth)
         out.append(TuningResult(threshold, heat_threshold, weighting, fraction, width_scale,
                                 height_scale, center_dy, report.precision, report.recall,
-                                report.ap, report.mean_iou))
+                                report.ap, report.mean_iou, report.iou_p10))
     return out
 
 
@@ -185,17 +239,26 @@ def as_toml(result):
             f"[heat]\nthreshold = {result.heat_threshold}\nweighting = \"{result.weighting}\"\n"
             f"peak_fraction = {result.peak_fraction}\n\n"
             f"[boxes]\nwidth_scale = {result.width_scale}\nheight_scale = {result.height_scale}\n"
-            f"center_dy = {result.center_dy}\n")
+            f"center_dy = {result.center_dy}\n" + _refine_toml(result.refine))
+
+
+def _refine_toml(weights):
+    if not weights:
+        return ""
+    rows = ",\n".join("    [" + ", ".join(f"{v:.5f}" for v in row) + "]" for row in weights)
+    return f"refine = [\n{rows},\n]\n"
 
 
 def format_results(results, top=10):
     """Markdown table of the best combinations."""
     lines = ["| decision thr | heat thr | weighting | peak fraction | width x | height x | "
-             "centre dy | precision | recall | F1 | stable neighbours | AP50 | mean IoU |",
-             "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "centre dy | refined | precision | recall | F1 | stable neighbours | AP50 | mean IoU | "
+             "IoU p10 |",
+             "|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in results[:top]:
         lines.append(f"| {r.decision_threshold:g} | {r.heat_threshold:g} | {r.weighting} | "
                      f"{r.peak_fraction:g} | {r.width_scale:g} | {r.height_scale:g} | "
-                     f"{r.center_dy:g} | {r.precision:.3f} | {r.recall:.3f} | {r.f1:.3f} | "
-                     f"{r.stability} | {r.ap:.3f} | {r.mean_iou:.3f} |")
+                     f"{r.center_dy:g} | {'yes' if r.refine else 'no'} | {r.precision:.3f} | "
+                     f"{r.recall:.3f} | {r.f1:.3f} | {r.stability} | {r.ap:.3f} | "
+                     f"{r.mean_iou:.3f} | {r.iou_p10:.3f} |")
     return "\n".join(lines)
