@@ -47,10 +47,13 @@ class BoxFinder:
         weighting = self.config.heat.weighting
         if weighting == "count":
             return np.ones(len(hits.scores), dtype=np.float32)
-        if weighting == "margin":
-            return (hits.scores - self.config.search.decision_threshold).astype(np.float32)
-        per_scale = np.array([plan.heat_weight for plan in plans], dtype=np.float32)
-        return per_scale[hits.scale_index] if len(hits.scores) else np.zeros(0, np.float32)
+        weights = np.ones(len(hits.scores), dtype=np.float32)
+        if weighting in ("margin", "margin_area"):
+            weights = (hits.scores - self.config.search.decision_threshold).astype(np.float32)
+        if weighting in ("area", "margin_area") and len(hits.scores):
+            per_scale = np.array([plan.heat_weight for plan in plans], dtype=np.float32)
+            weights = weights * per_scale[hits.scale_index]
+        return weights
 
     def heat_region(self, hits, frame_size, plans):
         """Heat of the hits over their bounding region.

@@ -238,6 +238,10 @@ class SearchConfig:
             raise ConfigError(f"search.reach must be a number > 0, got {self.reach!r}")
 
 
+#: What a hit adds to the heat (see :class:`HeatConfig`).
+HEAT_WEIGHTINGS = ("count", "area", "margin", "margin_area")
+
+
 @dataclass(frozen=True)
 class HeatConfig:
     """How hit windows are merged.
@@ -246,10 +250,12 @@ class HeatConfig:
     ----------
     threshold : float
         Pixels whose heat exceeds this belong to a vehicle.
-    weighting : {'count', 'area', 'margin'}
-        Heat each hit adds: 1; ``(64 / window side) ** 2`` (small windows count
-        more, as one published pipeline does); or its SVM margin above the
-        decision threshold.
+    weighting : {'count', 'area', 'margin', 'margin_area'}
+        Heat each hit adds: 1; ``(64 / window side) ** 2`` with the side in
+        reference-frame pixels (small windows count more, as one published
+        pipeline does); its SVM margin above the decision threshold; or the
+        product of the last two (a small, far car is framed by few windows
+        of one size, a near one by many of several).
     connectivity : {4, 8}
         Pixel connectivity of the labelling.
     peak_fraction : float
@@ -280,8 +286,8 @@ class HeatConfig:
         if not isinstance(self.split, bool):
             raise ConfigError(f"heat.split must be true or false, got {self.split!r}")
         _number("heat.split_min_size", self.split_min_size)
-        if self.weighting not in ("count", "area", "margin"):
-            raise ConfigError(f"heat.weighting must be 'count', 'area' or 'margin', "
+        if self.weighting not in HEAT_WEIGHTINGS:
+            raise ConfigError(f"heat.weighting must be one of {', '.join(HEAT_WEIGHTINGS)}, "
                               f"got {self.weighting!r}")
         if self.connectivity not in (4, 8):
             raise ConfigError(f"heat.connectivity must be 4 or 8, got {self.connectivity!r}")

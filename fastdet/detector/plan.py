@@ -38,7 +38,10 @@ class ScalePlan:
     boxes : ndarray of int32, shape (ny * nx, 4)
         Every window of the scale in frame pixels, row-major over the grid.
     heat_weight : float
-        Heat a hit adds under ``weighting = 'area'``: (64 / window side)**2.
+        Heat a hit adds under ``weighting = 'area'`` (times its margin under
+        ``'margin_area'``): ``(64 / side) ** 2`` with the window's side in
+        pixels of a ``search.reference_size`` frame, so the same at every
+        frame size.
     """
 
     roi: tuple
@@ -54,7 +57,10 @@ class ScalePlan:
 
 
 def window_regions(search, options, frame_size):
-    """``(window, overlap, x0, y0, x1, y1)`` of every frame-relative window size, in pixels.
+    """``(window, overlap, x0, y0, x1, y1, reference_window)`` of every frame-relative size.
+
+    Pixels of the frame; ``reference_window`` is the side on a
+    ``search.reference_size`` frame.
 
     A window of side ``s`` (``size`` times the frame height ``H``) has its
     top edge between ``horizon * H + band[0] * s`` and ``horizon * H +
@@ -81,7 +87,8 @@ def window_regions(search, options, frame_size):
         ys = _grid_span(horizon + low * side - margin, horizon + high * side + margin + side,
                         height, factor, ppc, step)
         if xs is not None and ys is not None:
-            regions.append((side, window.overlap, xs[0], ys[0], xs[1], ys[1]))
+            regions.append((side, window.overlap, xs[0], ys[0], xs[1], ys[1],
+                            window.size * search.reference_size[1]))
     return regions
 
 
@@ -105,7 +112,7 @@ def _step_cells(overlap, cells_per_window):
 
 
 def scale_regions(search, frame_size):
-    """``(window, overlap, x0, y0, x1, y1)`` of every explicit pixel scale on this frame.
+    """``(window, overlap, x0, y0, x1, y1, reference_window)`` of every explicit pixel scale.
 
     Scale coordinates are given for ``search.reference_size`` and scaled
     proportionally (window sides by the geometric mean of the two axis
@@ -116,7 +123,7 @@ def scale_regions(search, frame_size):
     kx, ky = width / ref_w, height / ref_h
     k = math.sqrt(kx * ky)
     return [(scale.window * k, scale.overlap, scale.x[0] * kx, scale.y[0] * ky,
-             scale.x[1] * kx, scale.y[1] * ky) for scale in search.scales]
+             scale.x[1] * kx, scale.y[1] * ky, scale.window) for scale in search.scales]
 
 
 def plan_scales(config, options, frame_size):
@@ -134,7 +141,7 @@ def plan_scales(config, options, frame_size):
     ppc = options.pixels_per_cell
     cells_per_window = WINDOW // ppc
     plans = []
-    for window, overlap, rx0, ry0, rx1, ry1 in regions:
+    for window, overlap, rx0, ry0, rx1, ry1, reference_window in regions:
         x0 = int(np.clip(round(rx0), 0, width))
         x1 = int(np.clip(round(rx1), 0, width))
         y0 = int(np.clip(round(ry0), 0, height))
@@ -175,7 +182,7 @@ def plan_scales(config, options, frame_size):
         boxes[..., 2] = gx2[None, :]
         boxes[..., 3] = gy2[:, None]
         plans.append(ScalePlan((x0, y0, x1, y1), (scaled_w, scaled_h), step_cells, (ny, nx),
-                               boxes.reshape(-1, 4), (WINDOW / window) ** 2))
+                               boxes.reshape(-1, 4), (WINDOW / reference_window) ** 2))
     return tuple(plans)
 
 

@@ -40,7 +40,7 @@ SHAPE_CANDIDATES = 5
 DEFAULT_GRID = {
     "decision_threshold": (-0.5, -0.25, 0.0, 0.25, 0.5, 0.75, 1.0, 1.5),
     "heat_threshold": (0.0, 1.0, 2.0, 3.0, 4.0),
-    "weighting": ("count", "area", "margin"),
+    "weighting": ("count", "area", "margin", "margin_area"),
     "peak_fraction": (0.0, 0.3, 0.5, 0.7),
 }
 
