@@ -36,7 +36,14 @@ import numpy as np
 
 from ..detector.features import FeatureLayout, FeatureOptions, features_of_crops
 from ..detector.model import Model
-from .augment import JITTER_SCALE, JITTER_SHIFT, copies_of, jitter_crops, with_copies
+from .augment import (
+    JITTER_SCALE,
+    JITTER_SHIFT,
+    Photometric,
+    copies_of,
+    jitter_crops,
+    with_copies,
+)
 from .dataset import leak_free_folds, list_dataset, load_crops, random_split, source_of
 
 
@@ -182,7 +189,7 @@ def source_holdout(features, labels, sources, flips, C, seed=0, log=None):
 
 def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, seed=0,
           extra_negatives=(), log=None, return_test_scores=False, jitter=True,
-          photometric=None, hold_out_sources=False):
+          photometric=Photometric(), hold_out_sources=False):
     """Train a model on a data set folder and report both splits.
 
     Parameters
@@ -199,9 +206,10 @@ def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, se
     jitter : bool
         Add a randomly scaled, shifted and mirrored copy of every training
         crop (:func:`jitter_crops`, seeded with ``seed``).
-    photometric : Photometric, optional
+    photometric : Photometric or None
         Also change the jittered copy's brightness, contrast, colour, blur,
-        resolution and JPEG quality (needs ``jitter``).
+        resolution and JPEG quality (needs ``jitter``); ``None`` keeps its
+        look.
     hold_out_sources : bool
         Also report :func:`source_holdout` (one more fit per source).
     n_folds, test_fold : int

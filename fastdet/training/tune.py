@@ -36,6 +36,11 @@ SHAPE_GRID = {
 #: How many of the best threshold combinations get a shape search.
 SHAPE_CANDIDATES = 5
 
+#: Smallest split-off part (``[heat] split_min_size``, reference pixels) tried
+#: with the shape search: 32 is the smallest default window, 48 lets only
+#: cars as wide as the third one be split apart.
+SPLIT_GRID = (32.0, 48.0)
+
 #: The grid ``fastdet tune`` searches by default.
 DEFAULT_GRID = {
     "decision_threshold": (-0.5, -0.25, 0.0, 0.25, 0.5, 0.75, 1.0, 1.5),
@@ -61,6 +66,7 @@ class TuningResult:
     ap: float
     mean_iou: float
     iou_p10: float = 0.0
+    split_min_size: float = 48.0
     stability: int = 0
     refine: tuple = ()
     refine_samples: int = 0
@@ -118,14 +124,14 @@ def tune(model, sources, annotations, base_config=None, grid=None, log=None):
             grid["peak_fraction"]):
         shape = (base.boxes.width_scale, base.boxes.height_scale, base.boxes.center_dy)
         results.append(_evaluate(model, base, frames, truth, threshold, heat_threshold, weighting,
-                                 fraction, [shape])[0])
+                                 fraction, base.heat.split_min_size, [shape])[0])
     _rate_stability(results, grid)
     results.sort(key=TuningResult.key, reverse=True)
     shapes = list(itertools.product(SHAPE_GRID["width_scale"], SHAPE_GRID["height_scale"],
                                     SHAPE_GRID["center_dy"]))
-    for best in results[:SHAPE_CANDIDATES]:
+    for best, split in itertools.product(results[:SHAPE_CANDIDATES], SPLIT_GRID):
         shaped = _evaluate(model, base, frames, truth, best.decision_threshold,
-                           best.heat_threshold, best.weighting, best.peak_fraction, shapes)
+                           best.heat_threshold, best.weighting, best.peak_fraction, split, shapes)
         for result in shaped:
             result.stability = best.stability
         results.extend(shaped)
@@ -170,7 +176,8 @@ def _config(base, result):
         base,
         search=dataclasses.replace(base.search, decision_threshold=result.decision_threshold),
         heat=dataclasses.replace(base.heat, threshold=result.heat_threshold,
-                                 weighting=result.weighting, peak_fraction=result.peak_fraction),
+                                 weighting=result.weighting, peak_fraction=result.peak_fraction,
+                                 split_min_size=result.split_min_size),
         boxes=dataclasses.replace(base.boxes, width_scale=result.width_scale,
                                   height_scale=result.height_scale, center_dy=result.center_dy,
                                   refine=()))
@@ -206,13 +213,13 @@ def _rate_stability(results, grid):
 
 
 def _evaluate(model, base, frames, truth, threshold, heat_threshold, weighting, fraction,
-              shapes):
+              split_min_size, shapes):
     """Results of one threshold combination under each box shape correction."""
     config = dataclasses.replace(
         base,
         search=dataclasses.replace(base.search, decision_threshold=threshold),
         heat=dataclasses.replace(base.heat, threshold=heat_threshold, weighting=weighting,
-                                 peak_fraction=fraction),
+                                 peak_fraction=fraction, split_min_size=split_min_size),
         boxes=dataclasses.replace(base.boxes, refine=()))
     detector = Detector(model, config)
     blobs = {key: (_blobs(detector, hits, size, threshold)[0], size)
@@ -229,7 +236,7 @@ def _evaluate(model, base, frames, truth, threshold, heat_threshold, weighting, 
         report = evaluate(predictions, truth)
         out.append(TuningResult(threshold, heat_threshold, weighting, fraction, width_scale,
                                 height_scale, center_dy, report.precision, report.recall,
-                                report.ap, report.mean_iou, report.iou_p10))
+                                report.ap, report.mean_iou, report.iou_p10, split_min_size))
     return out
 
 
@@ -237,7 +244,7 @@ def as_toml(result):
     """The ``[search]``, ``[heat]`` and ``[boxes]`` overrides of a tuning result."""
     return (f"[search]\ndecision_threshold = {result.decision_threshold}\n\n"
             f"[heat]\nthreshold = {result.heat_threshold}\nweighting = \"{result.weighting}\"\n"
-            f"peak_fraction = {result.peak_fraction}\n\n"
+            f"peak_fraction = {result.peak_fraction}\nsplit_min_size = {result.split_min_size}\n\n"
             f"[boxes]\nwidth_scale = {result.width_scale}\nheight_scale = {result.height_scale}\n"
             f"center_dy = {result.center_dy}\n" + _refine_toml(result.refine))
 
@@ -251,13 +258,14 @@ def _refine_toml(weights):
 
 def format_results(results, top=10):
     """Markdown table of the best combinations."""
-    lines = ["| decision thr | heat thr | weighting | peak fraction | width x | height x | "
+    lines = ["| decision thr | heat thr | weighting | peak fraction | split min | width x | height x | "
              "centre dy | refined | precision | recall | F1 | stable neighbours | AP50 | mean IoU | "
              "IoU p10 |",
-             "|---:|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---:|---:|---|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in results[:top]:
         lines.append(f"| {r.decision_threshold:g} | {r.heat_threshold:g} | {r.weighting} | "
-                     f"{r.peak_fraction:g} | {r.width_scale:g} | {r.height_scale:g} | "
+                     f"{r.peak_fraction:g} | {r.split_min_size:g} | {r.width_scale:g} | "
+                     f"{r.height_scale:g} | "
                      f"{r.center_dy:g} | {'yes' if r.refine else 'no'} | {r.precision:.3f} | "
                      f"{r.recall:.3f} | {r.f1:.3f} | {r.stability} | {r.ap:.3f} | "
                      f"{r.mean_iou:.3f} | {r.iou_p10:.3f} |")
