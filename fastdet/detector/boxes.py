@@ -147,7 +147,8 @@ class BoxFinder:
         """
         weights = self.config.boxes.refine
         if weights and heat is not None and len(boxes):
-            features = heat_features(heat, origin, boxes, self.config.heat.threshold)
+            features = heat_features(heat, origin, boxes, self.config.heat.threshold,
+                                     frame_size)
             boxes = _clipped(refine_boxes(boxes, features, weights), frame_size)
         else:
             boxes = self.reshape_boxes(boxes, frame_size)

@@ -3,10 +3,13 @@
 A heat blob's box is only as precise as the window grid (windows step by a
 quarter to a half of their side), and square windows overhang wide cars.
 The blob's heat says more: where its upper levels lie, where its mass is
-centred and how far it spreads.  :func:`heat_features` measures that, in
-units of the box (so a model fitted on one frame size or camera applies to
-another), and :func:`refine_boxes` maps the features linearly to the four
-edges: ``edges = features @ weights.T``, each edge as an offset from the
+centred and how far it spreads.  And where the box lies says how the
+vehicle is seen: a large box low in the frame is a near vehicle, a box far
+to the side one seen at an angle, its side in view (so its box reaches
+beyond the rear the classifier fires on).  :func:`heat_features` measures
+that, in units of the box and of the frame height (so a model fitted on one
+frame size applies to another), and :func:`refine_boxes` maps the features
+linearly to the four edges: ``edges = features @ weights.T``, each edge as an offset from the
 box centre in box widths (x) or heights (y).  ``fastdet tune`` fits the
 weights on annotated frames (:func:`fastdet.training.refine.fit_refinement`).
 """
@@ -19,11 +22,11 @@ import numpy as np
 #: peak, whose bounding boxes are features.
 LEVELS = (1 / 3, 2 / 3)
 #: Length of a feature vector: a constant, the box of each level, the heat's
-#: centroid and spread.
-N_FEATURES = 1 + 4 * len(LEVELS) + 4
+#: centroid and spread, the box's size and its offset from the middle column.
+N_FEATURES = 1 + 4 * len(LEVELS) + 4 + 3
 
 
-def heat_features(heat, origin, boxes, threshold):
+def heat_features(heat, origin, boxes, threshold, frame_size):
     """Features of the heat inside each box.
 
     Parameters
@@ -36,6 +39,8 @@ def heat_features(heat, origin, boxes, threshold):
         Blob boxes in frame pixels (exclusive ``x2``/``y2``).
     threshold : float
         The heat threshold the blobs were cut at.
+    frame_size : tuple of int
+        ``(width, height)`` of the frame.
 
     Returns
     -------
@@ -44,10 +49,18 @@ def heat_features(heat, origin, boxes, threshold):
         at or above that level (its four edges, as offsets from the box
         centre in box widths and heights); the centroid of the heat above
         the threshold (same units) and its standard deviation (in box
-        widths and heights).
+        widths and heights); the log of the box height in frame heights;
+        the box centre's offset from the frame's middle column, signed and
+        absolute, in frame heights.
     """
     out = np.zeros((len(boxes), N_FEATURES))
     out[:, 0] = 1.0
+    frame_width, frame_height = frame_size
+    geometry = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    side = ((geometry[:, 0] + geometry[:, 2]) / 2 - frame_width / 2) / frame_height
+    out[:, -3] = np.log(np.maximum(geometry[:, 3] - geometry[:, 1], 1) / frame_height)
+    out[:, -2] = side
+    out[:, -1] = np.abs(side)
     ox, oy = origin
     for row, (x1, y1, x2, y2) in enumerate(np.asarray(boxes, dtype=np.int64)):
         width, height = max(x2 - x1, 1), max(y2 - y1, 1)
@@ -61,7 +74,7 @@ def heat_features(heat, origin, boxes, threshold):
         if total <= 0:
             # No heat inside (a box moved off its blob): the features of a
             # flat blob filling its box.
-            out[row, 1:] = [-0.5, -0.5, 0.5, 0.5] * len(LEVELS) + [0, 0, 0.29, 0.29]
+            out[row, 1:-3] = [-0.5, -0.5, 0.5, 0.5] * len(LEVELS) + [0, 0, 0.29, 0.29]
             continue
         xs = (np.arange(a1, a2) + ox + 0.5 - cx) / width
         ys = (np.arange(b1, b2) + oy + 0.5 - cy) / height

@@ -67,7 +67,7 @@ def refinement_samples(box_finder, blobs, annotations):
         if matched.any():
             boxes.append(blob_boxes[matched])
             features.append(heat_features(heat, origin, blob_boxes[matched],
-                                          box_finder.config.heat.threshold))
+                                          box_finder.config.heat.threshold, size))
             truth.append(gt[best[matched]])
     if not boxes:
         return RefinementSamples(np.zeros((0, 4)), np.zeros((0, 0)), np.zeros((0, 4)))

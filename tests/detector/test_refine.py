@@ -10,7 +10,7 @@ from fastdet.errors import ConfigError
 from fastdet.training.refine import RefinementSamples, fit_refinement, refined_ious
 
 
-def naive_features(heat, origin, box, threshold):
+def naive_features(heat, origin, box, threshold, frame_size):
     """The features by their definition, pixel by pixel."""
     x1, y1, x2, y2 = box
     w, h = x2 - x1, y2 - y1
@@ -32,7 +32,9 @@ def naive_features(heat, origin, box, threshold):
     my = sum(m * (y + 0.5) for (_, y), m in mass.items()) / total
     sx = np.sqrt(sum(m * (x + 0.5 - mx) ** 2 for (x, _), m in mass.items()) / total)
     sy = np.sqrt(sum(m * (y + 0.5 - my) ** 2 for (_, y), m in mass.items()) / total)
-    return np.array(out + [(mx - cx) / w, (my - cy) / h, sx / w, sy / h])
+    side = (cx - frame_size[0] / 2) / frame_size[1]
+    return np.array(out + [(mx - cx) / w, (my - cy) / h, sx / w, sy / h,
+                           np.log(h / frame_size[1]), side, abs(side)])
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -43,23 +45,28 @@ def test_heat_features_match_their_definition(seed):
     heat[12:20, 20:30] += 5
     origin = (100, 40)
     boxes = np.array([[107, 45, 145, 70], [110, 50, 131, 69], [95, 35, 160, 90]])
-    got = heat_features(heat, origin, boxes, threshold=1.5)
+    got = heat_features(heat, origin, boxes, threshold=1.5, frame_size=(320, 180))
     for row, box in zip(got, boxes):
-        np.testing.assert_allclose(row, naive_features(heat, origin, box, 1.5), atol=1e-9)
+        np.testing.assert_allclose(row, naive_features(heat, origin, box, 1.5, (320, 180)),
+                                   atol=1e-9)
 
 
 def test_a_flat_blob_filling_its_box():
     heat = np.full((20, 40), 3.0, np.float32)
-    features = heat_features(heat, (0, 0), np.array([[0, 0, 40, 20]]), threshold=1.0)[0]
+    features = heat_features(heat, (0, 0), np.array([[0, 0, 40, 20]]), threshold=1.0,
+                             frame_size=(80, 40))[0]
     assert features.shape == (N_FEATURES,)
     np.testing.assert_allclose(features[1:1 + 4 * len(LEVELS)], [-0.5, -0.5, 0.5, 0.5] * len(LEVELS))
     # Centred; the spread of a uniform distribution over the box: 1 / sqrt(12) of its side.
-    np.testing.assert_allclose(features[-4:], [0, 0, np.sqrt(1 / 12 - 1 / 12 / 40 ** 2),
-                                               np.sqrt(1 / 12 - 1 / 12 / 20 ** 2)], atol=1e-9)
+    np.testing.assert_allclose(features[-7:-3], [0, 0, np.sqrt(1 / 12 - 1 / 12 / 40 ** 2),
+                                                 np.sqrt(1 / 12 - 1 / 12 / 20 ** 2)], atol=1e-9)
+    # Half the frame high, its centre half a frame height left of the middle.
+    np.testing.assert_allclose(features[-3:], [np.log(0.5), -0.5, 0.5])
     # No heat above the threshold in the box: the same flat-blob features, nothing raised.
     empty = heat_features(np.zeros((20, 40), np.float32), (0, 0), np.array([[0, 0, 40, 20]]),
-                          threshold=1.0)[0]
+                          threshold=1.0, frame_size=(80, 40))[0]
     np.testing.assert_allclose(empty[1:1 + 4 * len(LEVELS)], features[1:1 + 4 * len(LEVELS)])
+    np.testing.assert_allclose(empty[-3:], features[-3:])
 
 
 def test_refine_boxes_places_edges_from_the_weights():
