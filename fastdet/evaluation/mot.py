@@ -21,6 +21,7 @@ boxes anyway.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,8 +83,10 @@ class TrackingReport:
     frames: int
 
     def to_dict(self):
-        """JSON-ready figures."""
-        return dict(self.__dict__)
+        """JSON-ready figures (``None`` for a ratio without a denominator, e.g. MOTA
+        over frames without vehicles)."""
+        return {name: None if isinstance(value, float) and not math.isfinite(value) else value
+                for name, value in self.__dict__.items()}
 
 
 def tracking_metrics(tracks, annotations, iou_threshold=0.5, difficult_cover=DIFFICULT_COVER):

@@ -83,6 +83,12 @@ def test_frames_are_taken_in_index_order():
     assert tracking_metrics(tracks, truth).id_switches == 1
 
 
+def test_frames_without_vehicles():
+    report = tracking_metrics(tracks_of([(A, 1)]), {"frame0": []})
+    assert report.false_positives == 1 and report.objects == 0
+    assert report.to_dict()["mota"] is None  # undefined, and JSON has no NaN
+
+
 def test_missing_frames_count_as_empty_and_unknown_frames_are_refused():
     report = tracking_metrics({}, two_cars(2))
     assert (report.misses, report.mota) == (4, 0.0)
