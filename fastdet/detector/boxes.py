@@ -149,7 +149,7 @@ class BoxFinder:
         if weights and heat is not None and len(boxes):
             features = heat_features(heat, origin, boxes, self.config.heat.threshold,
                                      frame_size)
-            boxes = _clipped(refine_boxes(boxes, features, weights), frame_size)
+            boxes = _clipped(refine_boxes(boxes, features, weights, frame_size[0]), frame_size)
         else:
             boxes = self.reshape_boxes(boxes, frame_size)
         keep = self.box_filter(boxes, frame_size)

@@ -9,9 +9,15 @@ to the side one seen at an angle, its side in view (so its box reaches
 beyond the rear the classifier fires on).  :func:`heat_features` measures
 that, in units of the box and of the frame height (so a model fitted on one
 frame size applies to another), and :func:`refine_boxes` maps the features
-linearly to the four edges: ``edges = features @ weights.T``, each edge as an offset from the
-box centre in box widths (x) or heights (y).  ``fastdet tune`` fits the
-weights on annotated frames (:func:`fastdet.training.refine.fit_refinement`).
+linearly to the four edges: ``edges = features @ weights.T``, each edge as
+an offset from the box centre in box widths (x) or heights (y).
+
+A vehicle left of the middle is the mirror image of one on the right (the
+side in view is the other one), so boxes left of the middle column are
+measured, and their edges placed, in the mirrored frame: one model serves
+both sides, even if the frames it was fitted on had vehicles on one side
+only.  ``fastdet tune`` fits the weights on annotated frames
+(:func:`fastdet.training.refine.fit_refinement`).
 """
 
 from __future__ import annotations
@@ -22,8 +28,14 @@ import numpy as np
 #: peak, whose bounding boxes are features.
 LEVELS = (1 / 3, 2 / 3)
 #: Length of a feature vector: a constant, the box of each level, the heat's
-#: centroid and spread, the box's size and its offset from the middle column.
-N_FEATURES = 1 + 4 * len(LEVELS) + 4 + 3
+#: centroid and spread, the box's height and its distance from the middle column.
+N_FEATURES = 1 + 4 * len(LEVELS) + 4 + 2
+
+
+def mirrored(boxes, frame_width):
+    """Which boxes lie left of the middle column (and are measured mirrored)."""
+    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    return boxes[:, 0] + boxes[:, 2] < frame_width
 
 
 def heat_features(heat, origin, boxes, threshold, frame_size):
@@ -50,17 +62,18 @@ def heat_features(heat, origin, boxes, threshold, frame_size):
         centre in box widths and heights); the centroid of the heat above
         the threshold (same units) and its standard deviation (in box
         widths and heights); the log of the box height in frame heights;
-        the box centre's offset from the frame's middle column, signed and
-        absolute, in frame heights.
+        the distance of the box centre from the frame's middle column in
+        frame heights.  Boxes left of the middle (:func:`mirrored`) are
+        measured in the mirrored frame: their x offsets change sign and
+        their left and right edges swap.
     """
     out = np.zeros((len(boxes), N_FEATURES))
     out[:, 0] = 1.0
     frame_width, frame_height = frame_size
     geometry = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-    side = ((geometry[:, 0] + geometry[:, 2]) / 2 - frame_width / 2) / frame_height
-    out[:, -3] = np.log(np.maximum(geometry[:, 3] - geometry[:, 1], 1) / frame_height)
-    out[:, -2] = side
-    out[:, -1] = np.abs(side)
+    out[:, -2] = np.log(np.maximum(geometry[:, 3] - geometry[:, 1], 1) / frame_height)
+    out[:, -1] = np.abs((geometry[:, 0] + geometry[:, 2]) / 2 - frame_width / 2) / frame_height
+    flip = mirrored(geometry, frame_width)
     ox, oy = origin
     for row, (x1, y1, x2, y2) in enumerate(np.asarray(boxes, dtype=np.int64)):
         width, height = max(x2 - x1, 1), max(y2 - y1, 1)
@@ -74,7 +87,7 @@ def heat_features(heat, origin, boxes, threshold, frame_size):
         if total <= 0:
             # No heat inside (a box moved off its blob): the features of a
             # flat blob filling its box.
-            out[row, 1:-3] = [-0.5, -0.5, 0.5, 0.5] * len(LEVELS) + [0, 0, 0.29, 0.29]
+            out[row, 1:-2] = [-0.5, -0.5, 0.5, 0.5] * len(LEVELS) + [0, 0, 0.29, 0.29]
             continue
         xs = (np.arange(a1, a2) + ox + 0.5 - cx) / width
         ys = (np.arange(b1, b2) + oy + 0.5 - cy) / height
@@ -85,17 +98,21 @@ def heat_features(heat, origin, boxes, threshold, frame_size):
             above = mass >= level * peak
             cols_in = np.flatnonzero(above.any(axis=0))
             rows_in = np.flatnonzero(above.any(axis=1))
-            out[row, col:col + 4] = (xs[cols_in[0]] - 0.5 / width, ys[rows_in[0]] - 0.5 / height,
-                                     xs[cols_in[-1]] + 0.5 / width, ys[rows_in[-1]] + 0.5 / height)
+            left, right = xs[cols_in[0]] - 0.5 / width, xs[cols_in[-1]] + 0.5 / width
+            if flip[row]:
+                left, right = -right, -left
+            out[row, col:col + 4] = (left, ys[rows_in[0]] - 0.5 / height, right,
+                                     ys[rows_in[-1]] + 0.5 / height)
             col += 4
         mx = columns @ xs / total
         my = rows @ ys / total
-        out[row, col:col + 4] = (mx, my, np.sqrt(columns @ (xs - mx) ** 2 / total),
+        out[row, col:col + 4] = (-mx if flip[row] else mx, my,
+                                 np.sqrt(columns @ (xs - mx) ** 2 / total),
                                  np.sqrt(rows @ (ys - my) ** 2 / total))
     return out
 
 
-def refine_boxes(boxes, features, weights):
+def refine_boxes(boxes, features, weights, frame_width):
     """Boxes whose edges the linear model places.
 
     Parameters
@@ -104,7 +121,10 @@ def refine_boxes(boxes, features, weights):
     features : ndarray, shape (N, N_FEATURES)
         :func:`heat_features` of those boxes.
     weights : array_like, shape (4, N_FEATURES)
-        Rows for x1, y1, x2, y2.
+        Rows for x1, y1, x2, y2 (of the mirrored box, left of the middle).
+    frame_width : int or ndarray of shape (N,)
+        Width of the frame (of each box's frame), whose middle column
+        decides the mirroring.
 
     Returns
     -------
@@ -114,6 +134,9 @@ def refine_boxes(boxes, features, weights):
     """
     boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
     offsets = features @ np.asarray(weights, dtype=np.float64).T
+    flip = mirrored(boxes, frame_width)
+    offsets[flip] = np.stack([-offsets[flip, 2], offsets[flip, 1], -offsets[flip, 0],
+                              offsets[flip, 3]], axis=1)
     width = boxes[:, 2] - boxes[:, 0]
     height = boxes[:, 3] - boxes[:, 1]
     cx = (boxes[:, 0] + boxes[:, 2]) / 2

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..detector.geometry import iou_matrix
-from ..detector.refine import heat_features, refine_boxes
+from ..detector.refine import heat_features, mirrored, refine_boxes
 from ..evaluation.annotations import ground_truth_arrays
 
 #: Least IoU of a blob's shape-corrected box with a vehicle for the pair to be a sample.
@@ -27,11 +27,12 @@ RIDGE = 1.0
 
 @dataclass
 class RefinementSamples:
-    """Blob boxes, their heat features and their vehicles' boxes."""
+    """Blob boxes, their heat features, their vehicles' boxes and their frames' widths."""
 
     boxes: np.ndarray
     features: np.ndarray
     truth: np.ndarray
+    frame_widths: np.ndarray
 
     def __len__(self):
         return len(self.boxes)
@@ -55,7 +56,7 @@ def refinement_samples(box_finder, blobs, annotations):
     -------
     RefinementSamples
     """
-    boxes, features, truth = [], [], []
+    boxes, features, truth, widths = [], [], [], []
     for key, (blob_boxes, heat, origin, size) in blobs.items():
         gt, difficult = ground_truth_arrays(annotations[key])
         gt = gt[~difficult]
@@ -69,10 +70,12 @@ def refinement_samples(box_finder, blobs, annotations):
             features.append(heat_features(heat, origin, blob_boxes[matched],
                                           box_finder.config.heat.threshold, size))
             truth.append(gt[best[matched]])
+            widths.append(np.full(int(matched.sum()), float(size[0])))
     if not boxes:
-        return RefinementSamples(np.zeros((0, 4)), np.zeros((0, 0)), np.zeros((0, 4)))
+        return RefinementSamples(np.zeros((0, 4)), np.zeros((0, 0)), np.zeros((0, 4)),
+                                 np.zeros(0))
     return RefinementSamples(np.concatenate(boxes).astype(np.float64), np.concatenate(features),
-                             np.concatenate(truth))
+                             np.concatenate(truth), np.concatenate(widths))
 
 
 def fit_refinement(samples, ridge=RIDGE):
@@ -93,6 +96,10 @@ def fit_refinement(samples, ridge=RIDGE):
     truth = samples.truth
     targets = np.stack([(truth[:, 0] - cx) / width, (truth[:, 1] - cy) / height,
                         (truth[:, 2] - cx) / width, (truth[:, 3] - cy) / height], axis=1)
+    # Boxes left of the middle are modelled mirrored (see fastdet.detector.refine).
+    flip = mirrored(boxes, samples.frame_widths)
+    targets[flip] = np.stack([-targets[flip, 2], targets[flip, 1], -targets[flip, 0],
+                              targets[flip, 3]], axis=1)
     penalty = np.full(features.shape[1], float(ridge))
     penalty[0] = 0.0
     weights = np.linalg.solve(features.T @ features + np.diag(penalty), features.T @ targets)
@@ -101,6 +108,6 @@ def fit_refinement(samples, ridge=RIDGE):
 
 def refined_ious(samples, weights):
     """IoU of each sample's refined box (or, without weights, its blob box) with its vehicle."""
-    boxes = samples.boxes if not len(weights) else refine_boxes(samples.boxes, samples.features,
-                                                                weights)
+    boxes = samples.boxes if not len(weights) else refine_boxes(
+        samples.boxes, samples.features, weights, samples.frame_widths)
     return np.array([iou_matrix(b[None], t[None])[0, 0] for b, t in zip(boxes, samples.truth)])

@@ -5,7 +5,7 @@ import pytest
 
 from fastdet.detector.boxes import BoxFinder
 from fastdet.detector.config import BoxConfig, DetectorConfig, HeatConfig, load_config
-from fastdet.detector.refine import LEVELS, N_FEATURES, heat_features, refine_boxes
+from fastdet.detector.refine import LEVELS, N_FEATURES, heat_features, mirrored, refine_boxes
 from fastdet.errors import ConfigError
 from fastdet.training.refine import RefinementSamples, fit_refinement, refined_ious
 
@@ -22,19 +22,23 @@ def naive_features(heat, origin, box, threshold, frame_size):
             if 0 <= hy < heat.shape[0] and 0 <= hx < heat.shape[1]:
                 mass[x, y] = max(float(heat[hy, hx]) - threshold, 0.0)
     peak = max(mass.values())
+    flip = cx < frame_size[0] / 2
     out = [1.0]
     for level in LEVELS:
         inside = [p for p, m in mass.items() if m >= level * peak]
-        out += [(min(x for x, _ in inside) - cx) / w, (min(y for _, y in inside) - cy) / h,
-                (max(x for x, _ in inside) + 1 - cx) / w, (max(y for _, y in inside) + 1 - cy) / h]
+        left = (min(x for x, _ in inside) - cx) / w
+        right = (max(x for x, _ in inside) + 1 - cx) / w
+        if flip:
+            left, right = -right, -left
+        out += [left, (min(y for _, y in inside) - cy) / h, right,
+                (max(y for _, y in inside) + 1 - cy) / h]
     total = sum(mass.values())
     mx = sum(m * (x + 0.5) for (x, _), m in mass.items()) / total
     my = sum(m * (y + 0.5) for (_, y), m in mass.items()) / total
     sx = np.sqrt(sum(m * (x + 0.5 - mx) ** 2 for (x, _), m in mass.items()) / total)
     sy = np.sqrt(sum(m * (y + 0.5 - my) ** 2 for (_, y), m in mass.items()) / total)
-    side = (cx - frame_size[0] / 2) / frame_size[1]
-    return np.array(out + [(mx - cx) / w, (my - cy) / h, sx / w, sy / h,
-                           np.log(h / frame_size[1]), side, abs(side)])
+    return np.array(out + [(cx - mx if flip else mx - cx) / w, (my - cy) / h, sx / w, sy / h,
+                           np.log(h / frame_size[1]), abs(cx - frame_size[0] / 2) / frame_size[1]])
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -45,10 +49,11 @@ def test_heat_features_match_their_definition(seed):
     heat[12:20, 20:30] += 5
     origin = (100, 40)
     boxes = np.array([[107, 45, 145, 70], [110, 50, 131, 69], [95, 35, 160, 90]])
-    got = heat_features(heat, origin, boxes, threshold=1.5, frame_size=(320, 180))
-    for row, box in zip(got, boxes):
-        np.testing.assert_allclose(row, naive_features(heat, origin, box, 1.5, (320, 180)),
-                                   atol=1e-9)
+    for frame_size in ((320, 180), (200, 180)):   # the boxes right, then left of the middle
+        got = heat_features(heat, origin, boxes, threshold=1.5, frame_size=frame_size)
+        for row, box in zip(got, boxes):
+            np.testing.assert_allclose(row, naive_features(heat, origin, box, 1.5, frame_size),
+                                       atol=1e-9)
 
 
 def test_a_flat_blob_filling_its_box():
@@ -58,15 +63,15 @@ def test_a_flat_blob_filling_its_box():
     assert features.shape == (N_FEATURES,)
     np.testing.assert_allclose(features[1:1 + 4 * len(LEVELS)], [-0.5, -0.5, 0.5, 0.5] * len(LEVELS))
     # Centred; the spread of a uniform distribution over the box: 1 / sqrt(12) of its side.
-    np.testing.assert_allclose(features[-7:-3], [0, 0, np.sqrt(1 / 12 - 1 / 12 / 40 ** 2),
+    np.testing.assert_allclose(features[-6:-2], [0, 0, np.sqrt(1 / 12 - 1 / 12 / 40 ** 2),
                                                  np.sqrt(1 / 12 - 1 / 12 / 20 ** 2)], atol=1e-9)
     # Half the frame high, its centre half a frame height left of the middle.
-    np.testing.assert_allclose(features[-3:], [np.log(0.5), -0.5, 0.5])
+    np.testing.assert_allclose(features[-2:], [np.log(0.5), 0.5])
     # No heat above the threshold in the box: the same flat-blob features, nothing raised.
     empty = heat_features(np.zeros((20, 40), np.float32), (0, 0), np.array([[0, 0, 40, 20]]),
                           threshold=1.0, frame_size=(80, 40))[0]
     np.testing.assert_allclose(empty[1:1 + 4 * len(LEVELS)], features[1:1 + 4 * len(LEVELS)])
-    np.testing.assert_allclose(empty[-3:], features[-3:])
+    np.testing.assert_allclose(empty[-2:], features[-2:])
 
 
 def test_refine_boxes_places_edges_from_the_weights():
@@ -75,11 +80,25 @@ def test_refine_boxes_places_edges_from_the_weights():
     features[:, 0] = 1
     weights = np.zeros((4, N_FEATURES))
     weights[:, 0] = [-0.6, -0.25, 0.6, 0.75]      # wider, lower
-    out = refine_boxes(boxes, features, weights)
+    out = refine_boxes(boxes, features, weights, frame_width=40)
     np.testing.assert_allclose(out[0], [30 - 24, 30 - 5, 30 + 24, 30 + 15])
     # Crossed edges are put back in order.
     weights[:, 0] = [0.5, 0.5, -0.5, -0.5]
-    np.testing.assert_allclose(refine_boxes(boxes, features, weights)[1], [0, 0, 10, 10])
+    np.testing.assert_allclose(refine_boxes(boxes, features, weights, 40)[1], [0, 0, 10, 10])
+
+
+def test_boxes_left_of_the_middle_are_refined_mirrored():
+    # The model widens boxes towards the middle of the frame (the side of a
+    # car beside the road shows towards it): on the right it moves the left
+    # edge, on the left the right edge.
+    boxes = np.array([[60, 0, 80, 10], [20, 0, 40, 10]], dtype=float)
+    assert mirrored(boxes, 100).tolist() == [False, True]
+    features = np.zeros((2, N_FEATURES))
+    features[:, 0] = 1
+    weights = np.zeros((4, N_FEATURES))
+    weights[:, 0] = [-1.0, -0.5, 0.5, 0.5]
+    out = refine_boxes(boxes, features, weights, frame_width=100)
+    np.testing.assert_allclose(out, [[50, 0, 80, 10], [20, 0, 50, 10]])
 
 
 def test_fit_recovers_a_linear_relation():
@@ -92,15 +111,20 @@ def test_fit_recovers_a_linear_relation():
     offsets = features @ true.T
     truth = np.stack([120 + offsets[:, 0] * 40, 65 + offsets[:, 1] * 30,
                       120 + offsets[:, 2] * 40, 65 + offsets[:, 3] * 30], axis=1)
-    samples = RefinementSamples(boxes, features, truth)
+    samples = RefinementSamples(boxes, features, truth, np.full(n, 100.0))   # right of the middle
     np.testing.assert_allclose(fit_refinement(samples, ridge=1e-9), true, atol=1e-6)
+    # The same boxes left of the middle, their truths mirrored: the same weights.
+    def flip(b):
+        return np.c_[100 - b[:, 2], b[:, 1], 100 - b[:, 0], b[:, 3]]
+    mirror = RefinementSamples(flip(boxes), features, flip(truth), np.full(n, 100.0))
+    np.testing.assert_allclose(fit_refinement(mirror, ridge=1e-9), true, atol=1e-6)
     # A heavy ridge keeps only the constant: the mean offsets.
     heavy = fit_refinement(samples, ridge=1e9)
     np.testing.assert_allclose(heavy[:, 1:], 0, atol=1e-6)
     np.testing.assert_allclose(heavy[:, 0], offsets.mean(axis=0), atol=1e-3)
     assert refined_ious(samples, fit_refinement(samples, ridge=1e-9)) == pytest.approx(1.0)
     assert fit_refinement(RefinementSamples(np.zeros((0, 4)), np.zeros((0, 0)),
-                                            np.zeros((0, 4)))) == ()
+                                            np.zeros((0, 4)), np.zeros(0))) == ()
 
 
 def test_box_finder_refines_only_with_weights_and_heat():
