@@ -208,7 +208,7 @@ class SearchConfig:
     reach: float = 10.0
     scales: tuple = ()
     reference_size: tuple = (1280, 720)
-    decision_threshold: float = -0.25
+    decision_threshold: float = -0.5
 
     def __post_init__(self):
         object.__setattr__(self, "windows", tuple(self.windows))
@@ -274,9 +274,9 @@ class HeatConfig:
     threshold: float = 3.0
     weighting: str = "margin"
     connectivity: int = 8
-    peak_fraction: float = 0.3
+    peak_fraction: float = 0.5
     split: bool = True
-    split_min_size: float = 48.0
+    split_min_size: float = 32.0
 
     def __post_init__(self):
         _number("heat.threshold", self.threshold)
@@ -291,6 +291,21 @@ class HeatConfig:
                               f"got {self.weighting!r}")
         if self.connectivity not in (4, 8):
             raise ConfigError(f"heat.connectivity must be 4 or 8, got {self.connectivity!r}")
+
+
+#: The box refinement ``fastdet tune`` fitted for the bundled model on the
+#: development frames (``tools/build_default_model.py``): rows x1, y1, x2,
+#: y2 over the features of :func:`fastdet.detector.refine.heat_features`.
+DEFAULT_REFINE = (
+    (0.27312, 0.08669, 0.04828, 0.06029, -0.03011, 0.30224, 0.02330, -0.04854, 0.01643,
+     0.13859, 0.03097, -0.02454, -0.03778, 0.28056, -0.48630),
+    (0.02455, 0.01545, 0.02511, 0.03887, 0.02195, 0.04369, 0.04678, 0.01192, -0.00095, 0.03450,
+     0.02600, -0.00104, -0.01181, 0.12592, -0.21905),
+    (0.90507, -0.07789, -0.04873, 0.15153, 0.15427, 0.02751, -0.08195, -0.11701, 0.23935,
+     0.04428, 0.07219, 0.03708, 0.04564, 0.33221, 0.29332),
+    (0.47952, -0.01413, -0.03140, 0.00837, 0.12941, 0.01076, -0.01880, -0.07573, 0.17063,
+     0.00259, 0.05830, 0.00086, 0.03658, 0.04495, 0.04172),
+)
 
 
 @dataclass(frozen=True)
@@ -322,10 +337,10 @@ class BoxConfig:
     min_aspect: float = 0.5
     max_aspect: float = 3.0
     horizon_y: float = 380.0
-    width_scale: float = 1.2
-    height_scale: float = 0.8
+    width_scale: float = 1.5
+    height_scale: float = 1.0
     center_dy: float = 0.05
-    refine: tuple = ()
+    refine: tuple = DEFAULT_REFINE
 
     def __post_init__(self):
         object.__setattr__(self, "refine", tuple(tuple(row) for row in self.refine))
