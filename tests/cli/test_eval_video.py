@@ -123,3 +123,14 @@ def test_annotations_without_ids_give_detection_figures_only(stub_pipeline, bloc
                                             for i, b in enumerate(truth)}}))
     report = run_json(capsys, plain, video)
     assert report["recall"] == 1.0 and "tracking" not in report
+
+
+def test_the_bundled_model_tracks_both_cars_of_the_test_video(capsys, data_dir):
+    """The real pipeline on the real clip: the two near cars, no switch, nothing else."""
+    from pathlib import Path
+
+    annotations = Path(__file__).parents[1] / "data" / "test_video_annotations.json"
+    report = run_json(capsys, annotations, data_dir / "test_video.mp4", "--threads", 1)
+    assert (report["precision"], report["recall"]) == (1.0, 1.0)
+    tracking = report["tracking"]
+    assert (tracking["mota"], tracking["idf1"], tracking["id_switches"]) == (1.0, 1.0, 0)

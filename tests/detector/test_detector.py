@@ -125,7 +125,7 @@ def test_a_lower_horizon_moves_every_band_down(random_model):
 def test_heatmap_and_boxes_from_known_hits(random_model):
     config = DetectorConfig(heat=HeatConfig(threshold=1, weighting="count", peak_fraction=0),
                             boxes=BoxConfig(min_size=1, horizon_y=0, width_scale=1,
-                                            height_scale=1, center_dy=0))
+                                            height_scale=1, center_dy=0, refine=()))
     detector = Detector(random_model, config, threads=1)
     boxes = np.array([[10, 10, 50, 50], [20, 20, 60, 60], [200, 200, 240, 240]], np.int32)
     hits = Hits(boxes, np.ones(3, np.float32), np.zeros(3, np.int64), 3)
@@ -224,7 +224,7 @@ def _boxes_from_hits(model, windows, split, min_size=48):
     config = DetectorConfig(heat=HeatConfig(threshold=0.5, weighting="count", peak_fraction=0,
                                             split=split, split_min_size=min_size),
                             boxes=BoxConfig(min_size=10, horizon_y=0, max_aspect=5, width_scale=1,
-                                            height_scale=1, center_dy=0))
+                                            height_scale=1, center_dy=0, refine=()))
     detector = Detector(model, config, threads=1)
     boxes = np.array(windows, np.int32)
     hits = Hits(boxes, np.ones(len(boxes), np.float32), np.zeros(len(boxes), np.int64), len(boxes))
@@ -257,7 +257,8 @@ def test_small_parts_are_not_split_off(random_model):
 
 
 def test_shape_correction_scales_about_the_centre(random_model):
-    config = DetectorConfig(boxes=BoxConfig(width_scale=1.5, height_scale=0.5, center_dy=0.25))
+    config = DetectorConfig(boxes=BoxConfig(width_scale=1.5, height_scale=0.5, center_dy=0.25,
+                                            refine=()))
     detector = Detector(random_model, config, threads=1)
     boxes = np.array([[100, 100, 200, 200], [0, 0, 40, 40]], np.int32)
     out = detector.box_finder.reshape_boxes(boxes, (1280, 720))

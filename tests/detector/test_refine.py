@@ -135,7 +135,7 @@ def test_box_finder_refines_only_with_weights_and_heat():
     weights[:, 0] = [-0.25, -0.25, 0.25, 0.25]     # the middle half
     shaped = DetectorConfig(heat=HeatConfig(threshold=1),
                             boxes=BoxConfig(min_size=1, horizon_y=0, width_scale=1.5,
-                                            height_scale=1, center_dy=0))
+                                            height_scale=1, center_dy=0, refine=()))
     refined = DetectorConfig(heat=HeatConfig(threshold=1),
                              boxes=BoxConfig(min_size=1, horizon_y=0, width_scale=1.5,
                                              height_scale=1, center_dy=0,
