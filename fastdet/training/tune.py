@@ -264,7 +264,8 @@ def as_toml(result):
 
 def _refine_toml(weights):
     if not weights:
-        return ""
+        # Explicitly none: the default refinement is fitted to the bundled model.
+        return "refine = []\n"
     rows = ",\n".join("    [" + ", ".join(f"{v:.5f}" for v in row) + "]" for row in weights)
     return f"refine = [\n{rows},\n]\n"
 
