@@ -56,6 +56,13 @@ class ScalePlan:
         return self.grid[0] * self.grid[1]
 
 
+#: Frame-relative windows smaller than this many pixels are not searched: the
+#: search would enlarge them more than four times to the model's 64 pixels,
+#: and nothing that small is a vehicle the classifier can tell (at 360 rows
+#: the smallest default window is exactly this size).
+MIN_WINDOW = 16
+
+
 def window_regions(search, options, frame_size):
     """``(window, overlap, x0, y0, x1, y1, reference_window)`` of every frame-relative size.
 
@@ -69,7 +76,8 @@ def window_regions(search, options, frame_size):
     decided here, on the unrounded region measured in window sides, and the
     region is cut to that grid plus a cell of slack: so every frame size of
     one aspect ratio gets the same grid of windows, which the rounding of
-    pixel coordinates could otherwise change by a row.
+    pixel coordinates could otherwise change by a row.  Sizes below
+    :data:`MIN_WINDOW` pixels are left out.
     """
     width, height = frame_size
     ppc = options.pixels_per_cell
@@ -80,6 +88,8 @@ def window_regions(search, options, frame_size):
     regions = []
     for window in search.windows:
         side = window.size * height
+        if side < MIN_WINDOW - 1e-6:
+            continue
         factor = WINDOW / side
         step = _step_cells(window.overlap, cells)
         half_span = search.reach * side + side / 2
