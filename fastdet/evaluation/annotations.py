@@ -91,6 +91,12 @@ def load_splits(path):
     return {name: list(images) for name, images in splits.items()}
 
 
+def frame_number(name):
+    """The 0-based frame index of a video frame's name ``frame<N>``, or ``None``."""
+    digits = name[5:] if name.startswith("frame") else ""
+    return int(digits) if digits.isdigit() else None
+
+
 def select_split(annotations, splits, name):
     """The annotations of one split's images (all of them for ``name=None``).
 

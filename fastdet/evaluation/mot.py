@@ -28,7 +28,7 @@ import numpy as np
 
 from ..detector.geometry import as_box_array, iou_matrix
 from ..errors import InputError, MissingExtraError
-from .annotations import ground_truth_arrays
+from .annotations import frame_number, ground_truth_arrays
 from .matching import DIFFICULT_COVER, IGNORED, match_image
 
 try:
@@ -164,5 +164,5 @@ def tracking_metrics(tracks, annotations, iou_threshold=0.5, difficult_cover=DIF
 
 
 def _frame_order(name):
-    digits = name[5:] if name.startswith("frame") else ""
-    return (0, int(digits), name) if digits.isdigit() else (1, 0, name)
+    number = frame_number(name)
+    return (0, number, name) if number is not None else (1, 0, name)

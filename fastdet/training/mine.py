@@ -25,6 +25,7 @@ import numpy as np
 from ..detector.features import WINDOW
 from ..detector.geometry import iou_matrix
 from ..errors import InputError
+from ..evaluation.annotations import frame_number
 from ..files.atomic import atomic_path
 from ..video.reader import VideoReader
 
@@ -54,17 +55,16 @@ def annotated_frames(source, annotations):
     if not source.is_file():
         raise InputError(f"mining source not found: {source}")
     if source.suffix.lower() in VIDEO_SUFFIXES:
-        wanted = {key for key in annotations if key.startswith("frame") and key[5:].isdigit()}
-        last = max((int(key[5:]) for key in wanted), default=-1)
-        if last < 0:
+        # Keys may have any number of digits (frame7 or frame0007).
+        wanted = {frame_number(key): key for key in annotations
+                  if frame_number(key) is not None}
+        if not wanted:
             return
+        last = max(wanted)
         with VideoReader(source) as video:
             for index, frame in enumerate(video):
-                # Keys may have any number of digits (frame7 or frame0007).
-                for key in (f"frame{index:04d}", f"frame{index}"):
-                    if key in wanted:
-                        yield key, frame
-                        break
+                if index in wanted:
+                    yield wanted[index], frame
                 if index >= last:
                     return
         return

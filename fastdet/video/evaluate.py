@@ -10,6 +10,7 @@ frames are kept for the detection and tracking metrics.
 from __future__ import annotations
 
 from ..errors import InputError
+from ..evaluation.annotations import frame_number
 from .reader import VideoReader
 
 
@@ -21,11 +22,11 @@ def frame_index(name):
     InputError
         For any other name.
     """
-    digits = name[5:] if name.startswith("frame") else ""
-    if not digits.isdigit():
+    number = frame_number(name)
+    if number is None:
         raise InputError(f"video annotations name frames frame<N> (N the 0-based index), "
                          f"got {name!r}")
-    return int(digits)
+    return number
 
 
 def track_annotated_frames(pipeline, video, names):
