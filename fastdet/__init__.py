@@ -6,6 +6,7 @@ Public API::
     detections = detector(frame_bgr_uint8)   # Detections: xyxy, score
     pipeline = fastdet.VideoPipeline(detector, fastdet.TrackConfig(every=5))
     for index, frame, boxes, track_ids in pipeline(frames): ...
+    records = fastdet.batch(["footage/"], "out/")   # many videos on Dask (imported on first use)
 """
 
 from .detector.config import DetectorConfig, load_config
@@ -25,3 +26,12 @@ __all__ = [
     "InputError", "Model", "ModelError", "TrackConfig", "VideoPipeline", "hog", "load_config",
     "__version__", "load_model", "load_track_config", "train",
 ]
+
+
+def __getattr__(name):
+    # fastdet.batch imports Dask: only when it is first used.
+    if name == "batch":
+        import importlib
+
+        return importlib.import_module(".batch", __name__)
+    raise AttributeError(f"module 'fastdet' has no attribute {name!r}")

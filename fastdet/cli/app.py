@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from ..errors import FastdetError
+from .batch import add_batch_parser
 from .bench import add_bench_parser
 from .detect import add_detect_parser
 from .eval import add_eval_parser
@@ -30,7 +31,8 @@ def build_parser():
         prog="fastdet", description="Fast classical vehicle detection (HOG + linear SVM).")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add_verb in (add_detect_parser, add_eval_parser, add_train_parser, add_mine_parser,
-                     add_tune_parser, add_run_parser, add_viz_parser, add_bench_parser):
+                     add_tune_parser, add_run_parser, add_batch_parser, add_viz_parser,
+                     add_bench_parser):
         add_verb(sub)
     return parser
 
