@@ -32,6 +32,17 @@ class OutputPaths:
         """The paths that are written, in a fixed order."""
         return [p for p in (self.video, self.detections, self.thumbnail) if p is not None]
 
+    def as_dict(self):
+        """``{"video": str or None, ...}``: what a task receives."""
+        return {name: None if path is None else str(path)
+                for name, path in (("video", self.video), ("detections", self.detections),
+                                   ("thumbnail", self.thumbnail))}
+
+    @classmethod
+    def from_dict(cls, paths):
+        """The inverse of :meth:`as_dict`."""
+        return cls(**{name: None if path is None else Path(path) for name, path in paths.items()})
+
     def relative_to(self, out_dir):
         """``{"video": "day1/clip.mp4", ...}`` relative to ``out_dir``, as the manifest stores them."""
         return {name: Path(path).relative_to(out_dir).as_posix()

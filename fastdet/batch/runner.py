@@ -25,7 +25,7 @@ from ..errors import InputError
 from ..video.reader import VideoReader
 from .boundary import IdMap, compare
 from .manifest import Manifest, input_fingerprint, is_up_to_date
-from .outputs import output_paths, parts_folder, remove_leftovers
+from .outputs import OutputPaths, output_paths, parts_folder, remove_leftovers
 from .progress import BatchProgress
 from .segments import parse_segment, plan_segments, segment_frames, warmup_frames
 from .worker import BatchSetup, merge_task, render_task, video_task
@@ -212,12 +212,6 @@ def _reason(result):
     return None
 
 
-def _names(video, outputs):
-    return {name: (None if value is None else str(value))
-            for name, value in (("video", outputs.video), ("detections", outputs.detections),
-                                ("thumbnail", outputs.thumbnail))}
-
-
 class _WholeVideo:
     """A video processed by one task."""
 
@@ -228,7 +222,7 @@ class _WholeVideo:
         self.record = None
 
     def start(self):
-        job = {"input": str(self.video.path), "outputs": _names(self.video, self.outputs),
+        job = {"input": str(self.video.path), "outputs": self.outputs.as_dict(),
                "topic": self.run.topic, "key": self.video.relative}
         return [self.run.submit(video_task, self.run.settings.name, job, key=self.video.key)]
 
@@ -279,8 +273,7 @@ class _SegmentedVideo:
     def _detect(self, k, order=None):
         start, end, _ = self.segments[k]
         job = {"input": str(self.video.path),
-               "outputs": {"video": None, "detections": str(self._part(k, ".jsonl")),
-                           "thumbnail": None},
+               "outputs": OutputPaths(None, self._part(k, ".jsonl"), None).as_dict(),
                "frame_range": (start, end), "warmup": start - self.warm_starts[k],
                "format": "jsonl", "track_order": order, "topic": self.run.topic,
                "key": f"{self.video.relative}#{k}"}
@@ -307,12 +300,19 @@ class _SegmentedVideo:
     def _check(self):
         """Certify the boundaries left to right; redo the first segment that fails."""
         config = self.run.settings.detector_config
-        for k, result in enumerate(self.results):
+        for k in range(len(self.results)):
+            if k >= len(self.results):         # segments after an early end were dropped
+                break
+            result = self.results[k]
             if self.maps[k] is not None:
                 continue
             if result["frames"] == 0:          # the header promised more frames than there are
                 self._drop_from(k)
                 break
+            start, end, _ = self.segments[k]
+            if end is not None and result["frames"] < end - start:
+                # The video cannot be read past here: the whole-video run stops here too.
+                self._drop_from(k + 1)
             if self.warm_starts[k] == 0:       # read from frame 0: the whole-video run itself
                 self.maps[k] = IdMap.identity()
                 continue

@@ -116,8 +116,7 @@ def video_task(name, job):
     ``warmup``, ``format``, ``track_order``, ``topic`` and ``key``.
     """
     worker, plugin = _setup(name)
-    outputs = OutputPaths(**{k: (None if v is None else Path(v))
-                             for k, v in job["outputs"].items()})
+    outputs = OutputPaths.from_dict(job["outputs"])
     try:
         result = process_one(job["input"], outputs, plugin.settings, job.get("frame_range"),
                              job.get("warmup", 0), detector=plugin.detector(),
@@ -134,8 +133,8 @@ def video_task(name, job):
 def render_task(job):
     """Draw a segment's boxes into its part of the annotated video (``job``: see the runner)."""
     started = time.time()
-    outputs = OutputPaths(video=Path(job["video"]), detections=None,
-                          thumbnail=None if job["thumbnail"] is None else Path(job["thumbnail"]))
+    outputs = OutputPaths.from_dict({"video": job["video"], "detections": None,
+                                     "thumbnail": job["thumbnail"]})
     try:
         frames = render_one(job["input"], job["frame_range"], Path(job["detections"]),
                             IdMap.from_dict(job["ids"]), outputs)

@@ -132,6 +132,25 @@ def test_a_segmented_long_video_equals_the_whole_video(client, clips, loop_whole
     assert not (tmp_path / ".fastdet-parts").exists()
 
 
+@pytest.mark.slow
+def test_a_segmented_1000_frame_h264_video_equals_the_whole_video(client, clips, tmp_path):
+    """The issue's clip: the test video forwards and backwards to 1000 frames, H.264 with
+    B-frames; two and four segments, each boundary checked, the merge byte-identical."""
+    import av
+
+    loop = looped_clip(clips["video"], tmp_path / "loop1000.mp4", 1000, codec="h264")
+    [whole] = fastdet.batch(loop, tmp_path / "whole", client, video=False)
+    assert whole["frames"] == 1000
+    for segment, count in (("500", 2), ("250", 4)):
+        out = tmp_path / f"segments-{segment}"
+        [record] = fastdet.batch(loop, out, client, segment=segment)
+        assert record["status"] == "done" and record["segments"] == count
+        assert filecmp.cmp(out / "loop1000.jsonl", tmp_path / "whole" / "loop1000.jsonl",
+                           shallow=False)
+        with av.open(str(out / "loop1000.mp4")) as video:
+            assert sum(1 for _ in video.decode(video=0)) == 1000
+
+
 def test_short_warmups_are_redone_until_exact(client, clips, tmp_path):
     """Warm-ups of 3 frames fail their checks; the segments are redone with longer ones (and
     from frame 0 at the end), and the annotated video is drawn and joined."""

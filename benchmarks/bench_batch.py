@@ -1,0 +1,160 @@
+"""``fastdet batch`` on local Dask clusters: scaling over videos, segments, per-video overhead.
+
+Inputs are the shared test video played forwards and backwards to 1000 frames
+(H.264, made once by ``setup_cache``) and copies of it.  Every figure is a
+ratio or a difference measured in one process, the two sides run back to
+back, so load from elsewhere on the machine hits both alike.  Detections
+only: with annotated videos every task also encodes on a second thread, which
+a one-worker run overlaps with its detection on an otherwise idle core.
+
+* ``track_videos_default_layout_vs_one_worker``: 8 copies on one single-threaded
+  worker, then on the machine's default layout (one worker per core); the
+  ratio of their throughputs.
+* ``track_one_video_whole_vs_two_segments``: one copy whole, then split in two
+  segments (``--segment 500``) on the default layout; the ratio of their times.
+* ``track_overhead_ms_per_video``: what a video costs besides its frames
+  (scheduling, hashing, opening, the first frame's set-up, the manifest), on
+  one worker: the time 16 more one-frame videos add, per video, less the
+  time of a frame (from 16 nine-frame videos against 16 one-frame ones).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+from ._common import video_path
+
+#: Frames of the long clip and copies of it in the scaling benchmark.
+FRAMES, COPIES = 1000, 8
+
+
+def _looped_clip(target, count, take=None):
+    """``count`` frames of the test video, forwards and backwards (H.264 via PyAV)."""
+    import av
+
+    from fastdet.video.reader import VideoReader
+
+    with VideoReader(video_path()) as reader:
+        frames, fps = list(reader)[:take], reader.fps
+    period = 2 * (len(frames) - 1) or 1
+    with av.open(str(target), "w") as container:
+        stream = container.add_stream("libx264", rate=round(fps))
+        stream.height, stream.width = frames[0].shape[:2]
+        stream.pix_fmt = "yuv420p"
+        stream.options = {"preset": "veryfast", "crf": "23"}
+        for i in range(count):
+            k = i % period
+            frame = frames[k if k < len(frames) else period - k]
+            for packet in stream.encode(av.VideoFrame.from_ndarray(frame, format="bgr24")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+
+
+@contextlib.contextmanager
+def _cluster(workers, threads=1):
+    """A local cluster of ``workers`` single-task processes, as ``fastdet batch`` starts it."""
+    from distributed import Client, LocalCluster
+
+    env = {"NUMBA_NUM_THREADS": str(threads), "OPENCV_FFMPEG_THREADS": str(threads)}
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                      host="127.0.0.1", dashboard_address="127.0.0.1:0", env=env) as cluster, \
+            Client(cluster) as client:
+        yield client
+
+
+def _timed(client, inputs, threads=1, **options):
+    """Seconds of one batch on a cluster whose workers are already set up (outputs discarded)."""
+    import fastdet
+
+    out = tempfile.mkdtemp(prefix="fastdet-bench-batch-")
+    try:
+        start = time.perf_counter()
+        records = fastdet.batch(inputs, out, client, video=False, threads=threads, **options)
+        seconds = time.perf_counter() - start
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+    assert all(r["status"] == "done" for r in records), records
+    return seconds
+
+
+def _warm(client, clip, threads=1):
+    """Set the workers up (model, kernels) so that the timed batches do not include it."""
+    _timed(client, [clip], threads=threads)
+
+
+class BatchScaling:
+    """Throughput ratios of local layouts (see the module notes)."""
+
+    number = 1
+    repeat = 1
+    rounds = 1
+    warmup_time = 0
+    timeout = 3600
+
+    def setup_cache(self):
+        folder = Path(tempfile.mkdtemp(prefix="fastdet-bench-batch-clips-"))
+        _looped_clip(folder / "long.mp4", FRAMES)
+        copies = folder / "copies"
+        copies.mkdir()
+        for k in range(COPIES):
+            os.link(folder / "long.mp4", copies / f"copy{k}.mp4")
+        short = folder / "short"
+        short.mkdir()
+        for frames, count in ((1, 32), (9, 16)):
+            _looped_clip(short / f"frames{frames}.mp4", frames)
+            for k in range(count):
+                os.link(short / f"frames{frames}.mp4", short / f"f{frames}-{k:02d}.mp4")
+            (short / f"frames{frames}.mp4").unlink()
+        return str(folder)
+
+    def track_videos_default_layout_vs_one_worker(self, folder):
+        from fastdet.batch.cluster import plan_layout
+
+        folder = Path(folder)
+        with _cluster(1) as client:
+            _warm(client, folder / "long.mp4")
+            one = _timed(client, [folder / "copies"])
+        with _cluster(plan_layout()) as client:
+            _warm(client, folder / "long.mp4")
+            default = _timed(client, [folder / "copies"])
+        return one / default
+
+    track_videos_default_layout_vs_one_worker.unit = "x"
+
+    def track_one_video_whole_vs_two_segments(self, folder):
+        from fastdet.batch.cluster import plan_layout
+
+        clip = Path(folder) / "long.mp4"
+        with _cluster(plan_layout()) as client:
+            _warm(client, clip)
+            whole = _timed(client, [clip])
+            split = _timed(client, [clip], segment=str(FRAMES // 2))
+        return whole / split
+
+    track_one_video_whole_vs_two_segments.unit = "x"
+
+    def track_overhead_ms_per_video(self, folder):
+        return 1e3 * overhead_per_video(Path(folder))["overhead"]
+
+    track_overhead_ms_per_video.unit = "ms"
+
+
+def overhead_per_video(folder):
+    """Seconds a video costs besides its frames, and a frame's, on one worker."""
+    short = sorted((folder / "short").glob("f1-*.mp4"))
+    nine = sorted((folder / "short").glob("f9-*.mp4"))
+    with _cluster(1) as client:
+        _warm(client, folder / "long.mp4")
+        sixteen = _timed(client, short[:16])
+        thirty_two = _timed(client, short)
+        nine_frames = _timed(client, nine)
+    per_frame = (nine_frames - sixteen) / (16 * 8)
+    per_video = (thirty_two - sixteen) / 16
+    return {"overhead": per_video - per_frame, "per_frame": per_frame,
+            "per_batch": sixteen - 16 * per_video}
