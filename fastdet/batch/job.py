@@ -124,6 +124,13 @@ class _ThumbnailTap:
         self._writer.write(frame)
 
 
+def warm_up(detector, track_config, frame):
+    """Run the pipeline twice on ``frame``: loads (or compiles) every kernel a video job calls."""
+    pipeline = VideoPipeline(_HeatWatch(detector), track_config)
+    for _ in range(2):
+        pipeline.process(frame)
+
+
 def process_one(input_path, outputs, options, frame_range=None, warmup_frames=0, *,
                 detector, detections_format=None, track_order=None, callback=None):
     """Process one video, or the frames ``frame_range`` of it, into ``outputs``.
@@ -158,7 +165,8 @@ def process_one(input_path, outputs, options, frame_range=None, warmup_frames=0,
         ``frames``, ``boxes``, ``track_ids`` (sorted), ``seconds`` (wall,
         warm-up included), ``warmup_seconds``, ``fps`` and ``size`` of the
         video, ``heat_floor``, the pipeline ``start_state`` and ``end_state``
-        (:func:`fastdet.batch.state.pipeline_state`), and ``started`` /
+        (:func:`fastdet.batch.state.pipeline_state`; ``None`` without a
+        ``frame_range``), and ``started`` /
         ``finished`` (Unix times).  A segment that lies past the video's end
         gives ``frames`` 0 and no states.
 
@@ -192,7 +200,9 @@ def process_one(input_path, outputs, options, frame_range=None, warmup_frames=0,
             pipeline.process(frame)
         if track_order is not None:
             reorder_tracks(pipeline, track_order)
-        start_state = pipeline_state(pipeline, frames.last() if start > 0 else None)
+        # Only segments have boundaries to check.
+        snapshot = pipeline_state if frame_range is not None else (lambda *_: None)
+        start_state = snapshot(pipeline, frames.last() if start > 0 else None)
         warmup_seconds = time.perf_counter() - clock
         writer = det_out = tap = None
         if outputs.video is not None:
@@ -214,7 +224,7 @@ def process_one(input_path, outputs, options, frame_range=None, warmup_frames=0,
             raise KeyboardInterrupt
         if stats.frames == 0:
             return _empty_result(started)
-        end_state = pipeline_state(pipeline, frames.last())
+        end_state = snapshot(pipeline, frames.last())
     if outputs.thumbnail is not None and tap is not None and tap.thumbnail is not None:
         write_image(outputs.thumbnail, tap.thumbnail)
     if callback is not None:

@@ -5,7 +5,8 @@ Each line is a JSON object::
     {"relative": "day1/clip.mp4", "input": "/footage/day1/clip.mp4", "size": 801181,
      "mtime_ns": ..., "sha256": "...", "model_sha256": "...", "config_sha256": "...",
      "status": "done", "frames": 38, "vehicles": 2, "detections": 74, "seconds": 1.9,
-     "fps": 20.0, "segments": 1, "outputs": {"video": "day1/clip.mp4", ...}, ...}
+     "fps": 20.0, "segments": 1, "workers": ["tcp://127.0.0.1:40215"],
+     "outputs": {"video": "day1/clip.mp4", ...}, ...}
 
 with ``"status": "failed"`` and a one-line ``"reason"`` for a video that could
 not be processed.  Records are appended (and flushed to disk) as videos

@@ -60,6 +60,8 @@ class BatchRun:
         Relative paths of the videos that were up to date.
     setup_seconds : float
         Time the workers took to set up (model, kernels) before the first task.
+    workers : int
+        Workers of the cluster when the batch started.
     """
 
     def __init__(self, client, settings, out_dir, force=False, segment=None, warmup=None):
@@ -74,7 +76,7 @@ class BatchRun:
             self.warmup, self.align = int(warmup), 1
         self.topic = f"fastdet-batch-{uuid.uuid4().hex}"
         self.manifest = Manifest(self.out_dir)
-        self.records, self.skipped, self.setup_seconds = [], set(), 0.0
+        self.records, self.skipped, self.setup_seconds, self.workers = [], set(), 0.0, 0
         self._futures = {}
 
     # -- the run -------------------------------------------------------------------
@@ -95,6 +97,7 @@ class BatchRun:
         """
         with _exclusive(self.out_dir):
             jobs = [job for job in (self._plan(video) for video in videos) if job is not None]
+            self.workers = len(self.client.scheduler_info()["workers"])
             bars = BatchProgress(len(jobs), progress)
             self.client.subscribe_topic(self.topic, bars.on_event)
             try:
@@ -181,7 +184,8 @@ class BatchRun:
         record = _base_record(job.video, job.fingerprint, self.settings)
         started = min(t["started"] for t in tasks)
         seconds = max(t["finished"] for t in tasks) - started
-        record.update(status="done", seconds=round(seconds, 3),
+        workers = sorted({t["worker"] for t in tasks if "worker" in t})
+        record.update(status="done", seconds=round(seconds, 3), workers=workers,
                       outputs=job.outputs.relative_to(self.out_dir), **values)
         record["fps"] = round(record["frames"] / seconds, 2) if seconds > 0 else None
         return record

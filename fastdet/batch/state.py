@@ -11,9 +11,9 @@ pipeline's state into the small digests that travel back to the client:
 * ``scalars``: frames since the last full search, the frame size, the scene
   trigger's reference thumbnail;
 * ``heat``: the smoothed heat map.  For exponential smoothing, one digest per
-  *flush level* ``2**-j``: the map with every value below ``2**-j`` set to 0
-  (see :mod:`fastdet.batch.boundary` for why values that small cannot change
-  any later output); for FIR smoothing the ring of maps, exactly;
+  *flush level* ``2**-j`` of the pixels at or above ``2**-j`` (see
+  :mod:`fastdet.batch.boundary` for why values below cannot change any later
+  output); for FIR smoothing the ring of maps, exactly;
 * ``tracks``: one digest per track, in table order, of everything but its id
   (box, score, misses, box history, patch); the ids and the next id to be
   given out travel as they are, to stitch ids across the boundary;
@@ -58,12 +58,7 @@ def heat_state(smoother):
     """Digests of a heat smoother's state (see the module notes)."""
     if isinstance(smoother, ExponentialHeat):
         state = smoother._state
-        if state is None:
-            return {"kind": "exponential", "alpha": smoother.alpha, "levels": None}
-        levels = {}
-        for level in FLUSH_LEVELS:
-            flushed = np.where(state >= np.float32(2.0 ** -level), state, np.float32(0))
-            levels[level] = _digest(flushed)
+        levels = None if state is None else flushed_digests(state)
         return {"kind": "exponential", "alpha": smoother.alpha, "levels": levels}
     if isinstance(smoother, FirHeat):
         return {"kind": "exact", "digest": _digest("fir", smoother._ring, smoother._sum,
@@ -71,6 +66,31 @@ def heat_state(smoother):
     if type(smoother) is NoHeatSmoothing:
         return {"kind": "exact", "digest": _digest("none")}
     return {"kind": "unknown"}        # never certified: the segment is redone from frame 0
+
+
+def flushed_digests(heat):
+    """``{j: digest}``: for each flush level ``E = 2**-j``, a digest of the map's pixels >= ``E``.
+
+    Two maps have equal digests at level ``j`` exactly when they agree at
+    every pixel where either reaches ``E`` (the digest covers the pixels'
+    positions and values).  The pixels are sorted once by value, so each
+    level's pixels are a prefix of that order and all levels cost one pass.
+    """
+    flat = heat.ravel()
+    positions = np.flatnonzero(flat >= np.float32(2.0 ** -FLUSH_LEVELS[-1]))
+    values = flat[positions]
+    order = np.lexsort((positions, -values))          # largest first, ties by position
+    pixels = np.empty(len(order), dtype=[("position", "<i8"), ("value", "<f4")])
+    pixels["position"], pixels["value"] = positions[order], values[order]
+    descending = -pixels["value"]
+    digest = hashlib.blake2b(repr(heat.shape).encode(), digest_size=16)
+    levels, done = {}, 0
+    for level in FLUSH_LEVELS:                        # E falls, the prefix grows
+        count = int(np.searchsorted(descending, -np.float32(2.0 ** -level), side="right"))
+        digest.update(pixels[done:count].tobytes())
+        done = count
+        levels[level] = digest.copy().hexdigest()
+    return levels
 
 
 def track_digest(track):

@@ -3,8 +3,8 @@
 :class:`BatchSetup` is registered once per batch (named after the model's
 and the configuration's hashes) and set up once per worker process: it
 limits the codec threads, loads the model from the bytes it carries and runs
-one detection, which loads the compiled kernels from Numba's cache (or
-compiles them once, on a machine whose cache is empty).  Tasks then only
+the pipeline on a noise frame, which loads the compiled kernels from Numba's
+cache (or compiles them once, on a machine whose cache is empty).  Tasks then only
 carry paths and the plugin's name; each task thread builds its
 :class:`~fastdet.Detector` on the shared model once.
 
@@ -30,7 +30,7 @@ from ..detector.detector import Detector
 from ..detector.model import load_model
 from ..errors import FastdetError
 from .boundary import IdMap
-from .job import process_one, render_one
+from .job import process_one, render_one, warm_up
 from .merge import concatenate_videos, merge_detections
 from .outputs import OutputPaths
 
@@ -78,7 +78,7 @@ class BatchSetup(WorkerPlugin):
             path.write_bytes(self.settings.model_bytes)
             self.model = load_model(path)
         frame = np.random.default_rng(0).integers(0, 256, WARMUP_FRAME, dtype=np.uint8)
-        self.detector().warm_up(frame)
+        warm_up(self.detector(), self.settings.track_config, frame)
         self.setup_seconds = time.perf_counter() - start
 
     def detector(self):
@@ -141,7 +141,7 @@ def render_task(job):
         result = {"status": "done", "frames": frames}
     except (FastdetError, OSError) as exc:
         result = _failed(exc)
-    result.update(started=started, finished=time.time())
+    result.update(started=started, finished=time.time(), worker=get_worker().address)
     return result
 
 
@@ -163,7 +163,7 @@ def merge_task(job):
         result = {"status": "done"}
     except (FastdetError, OSError) as exc:
         result = _failed(exc)
-    result.update(started=started, finished=time.time())
+    result.update(started=started, finished=time.time(), worker=get_worker().address)
     return result
 
 

@@ -69,6 +69,6 @@ def cmd_batch(args):
                     video=not args.no_video, detections=not args.no_detections,
                     format=args.format)
     print(summary_table(run.records, run.skipped, run.wall))
-    print(f"manifest: {run.manifest.path}; report: {run.manifest.path.parent / 'index.html'}",
-          flush=True)
+    print(f"{run.workers} workers, set up in {run.setup_seconds:.1f} s; manifest: "
+          f"{run.manifest.path}; report: {run.manifest.path.parent / 'index.html'}", flush=True)
     return EXIT_SOME_FAILED if any(r["status"] == "failed" for r in run.records) else 0

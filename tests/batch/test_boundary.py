@@ -12,7 +12,13 @@ from batch_stubs import STUB_HEAT, STUB_THRESHOLD, two_blocks
 from video_stubs import BlockDetector
 
 from fastdet.batch.boundary import IdMap, compare, flush_level
-from fastdet.batch.state import FLUSH_LEVELS, frame_digest, pipeline_state, reorder_tracks
+from fastdet.batch.state import (
+    FLUSH_LEVELS,
+    flushed_digests,
+    frame_digest,
+    pipeline_state,
+    reorder_tracks,
+)
 from fastdet.video.config import TrackConfig
 from fastdet.video.pipeline import VideoPipeline
 from fastdet.video.smoothing import ExponentialHeat
@@ -70,6 +76,23 @@ def test_without_the_floor_a_remnant_survives():
     assert a[0, 0] != b[0, 0] and min(a[0, 0], b[0, 0]) > STUB_THRESHOLD
     fine = 2.0 ** -flush_level(STUB_THRESHOLD, 0.25, 1.0)
     assert one._state[0, 0] >= fine       # the right level would not have certified it
+
+
+@settings(max_examples=300, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), level=st.sampled_from(FLUSH_LEVELS),
+       changes=st.integers(0, 3))
+def test_flushed_digests_agree_exactly_when_the_maps_do_above_the_level(seed, level, changes):
+    rng = np.random.default_rng(seed)
+    exponents = rng.integers(-152, 4, (7, 9))
+    one = (rng.random((7, 9)) * 2.0 ** exponents).astype(np.float32)
+    one[rng.random((7, 9)) < 0.3] = 0
+    two = one.copy()
+    for _ in range(changes):
+        where = tuple(rng.integers(0, [7, 9]))
+        two[where] = np.float32(rng.random() * 2.0 ** rng.integers(-152, 4))
+    flush = np.float32(2.0 ** -level)
+    agree = bool(np.all((one == two) | ((one < flush) & (two < flush))))
+    assert (flushed_digests(one)[level] == flushed_digests(two)[level]) == agree
 
 
 # -- states of real pipelines -----------------------------------------------------------
