@@ -17,6 +17,8 @@ from ..errors import InputError
 #: Suffixes of the files a folder search takes for videos (compared lower-case).
 VIDEO_SUFFIXES = frozenset({".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg",
                             ".ts", ".mts", ".m2ts", ".wmv", ".flv", ".3gp"})
+#: Bytes read to tell a list of paths from a binary file (a video with another suffix).
+_TEXT_PROBE = 8192
 
 
 @dataclass(frozen=True)
@@ -121,10 +123,15 @@ def _videos_in(folder, exclude):
 
 
 def _read_list(path, exclude):
+    with open(path, "rb") as handle:
+        head = handle.read(_TEXT_PROBE)
     try:
+        if b"\0" in head:
+            raise UnicodeDecodeError("utf-8", head, 0, 1, "binary")
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
-        raise InputError(f"{path} is neither a video (by its suffix) nor a text file listing "
+        raise InputError(f"{path} is neither a video (by its suffix: "
+                         f"{', '.join(sorted(VIDEO_SUFFIXES))}) nor a text file listing "
                          "videos") from None
     entries = []
     for line in text.splitlines():

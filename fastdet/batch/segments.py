@@ -4,7 +4,7 @@
 ``ceil(frames / 500)`` segments, ``--segment 30s`` into segments of 30 seconds.
 Every segment but the first re-processes :func:`warmup_frames` frames before
 its start, so the boundaries are placed to give the segments equal work: the
-first is longer by about the cost of a warm-up.
+first is longer by a warm-up.
 
 How long a warm-up must be, for the ``[track]`` settings:
 
@@ -37,9 +37,6 @@ from ..errors import InputError
 
 #: Binary orders by which the heat from before a warm-up must have decayed.
 MEMORY_BITS = 72
-#: Cost of a warm-up frame relative to a written frame (no drawing or encoding),
-#: used to even out the segments' work.
-WARMUP_COST = 0.8
 
 _SPEC = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(s|sec|seconds?)?\s*$")
 
@@ -119,8 +116,9 @@ def plan_segments(frame_count, length, warmup, align=1):
     if frame_count is None or frame_count <= length:
         return [(0, None, 0)]
     count = math.ceil(frame_count / length)
-    # First segment: no warm-up; the others do ~WARMUP_COST * warmup frames' more work.
-    extra = min(warmup, frame_count) * WARMUP_COST
+    # The first segment has no warm-up; each other one processes `warmup` frames more, at the
+    # same cost (segments detect only: the annotated video is drawn afterwards).
+    extra = min(warmup, frame_count)
     first = (frame_count + (count - 1) * extra) / count
     rest = (frame_count - first) / (count - 1)
     starts = sorted({0} | {round(first + k * rest) for k in range(count - 1)})

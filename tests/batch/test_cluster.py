@@ -270,3 +270,47 @@ def test_importing_fastdet_does_not_import_dask():
             "sys.modules; batch = fastdet.batch; assert 'distributed' in sys.modules; "
             "assert callable(batch) and fastdet.batch is batch")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=LIMIT)
+
+
+def test_the_local_layout_fills_the_cores_within_memory():
+    from fastdet.batch.cluster import WORKER_MEMORY, plan_layout
+
+    plenty = 64 * WORKER_MEMORY
+    assert plan_layout(cores=8, memory=plenty) == 8
+    assert plan_layout(cores=8, threads=2, memory=plenty) == 4
+    assert plan_layout(cores=8, threads=3, memory=plenty) == 2
+    assert plan_layout(cores=8, memory=3 * WORKER_MEMORY) == 3
+    assert plan_layout(cores=1, threads=4, memory=WORKER_MEMORY // 2) == 1
+
+
+class _Workers:
+    """A client whose workers answer the checks with ``reports``."""
+
+    def __init__(self, reports):
+        self.reports = reports
+
+    def run(self, function, *args):
+        return self.reports
+
+
+def test_workers_that_cannot_run_the_batch_are_named(tmp_path):
+    from fastdet.batch.cluster import check_workers
+    from fastdet.errors import InputError
+
+    good = {"version": fastdet.__version__, "sees_out_dir": True}
+    check_workers(_Workers({"tcp://10.0.0.1:1": good}), tmp_path)
+    with pytest.raises(InputError, match="worker tcp://10.0.0.2:1 runs fastdet 0.0.1"):
+        check_workers(_Workers({"tcp://10.0.0.1:1": good,
+                                "tcp://10.0.0.2:1": dict(good, version="0.0.1")}), tmp_path)
+    with pytest.raises(InputError, match="does not see .* on a filesystem they share"):
+        check_workers(_Workers({"tcp://10.0.0.3:1": dict(good, sees_out_dir=False)}), tmp_path)
+    assert list(tmp_path.iterdir()) == []          # the probe file is removed
+
+
+def test_the_probe_of_a_worker_reads_the_shared_folder(tmp_path):
+    from fastdet.batch.worker import worker_report
+
+    (tmp_path / "probe").write_text("x")
+    assert worker_report(str(tmp_path), "probe") == {"version": fastdet.__version__,
+                                                     "sees_out_dir": True}
+    assert not worker_report(str(tmp_path), "missing")["sees_out_dir"]
