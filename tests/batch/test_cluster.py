@@ -230,6 +230,13 @@ def test_a_cluster_started_with_the_dask_cli(clips, dask_cli_cluster, tmp_path, 
                        shallow=False)
 
 
+def _as_from_a_terminal():
+    # Signal masks and ignored signals are inherited: whatever this test process has blocked
+    # or ignored on the way (its own worker threads, other tests), a shell's child has not.
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_leaves_a_manifest_the_next_run_continues(clips, tmp_path):
     footage = tmp_path / "footage"
     footage.mkdir()
@@ -239,12 +246,13 @@ def test_ctrl_c_leaves_a_manifest_the_next_run_continues(clips, tmp_path):
     command = [str(Path(sys.executable).with_name("fastdet")), "batch", str(footage),
                "--out-dir", str(out), "--workers", "1", "--quiet"]
     process = subprocess.Popen(command, start_new_session=True, stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE)
+                               stderr=subprocess.PIPE, preexec_fn=_as_from_a_terminal)
     deadline = time.monotonic() + LIMIT
     while time.monotonic() < deadline and process.poll() is None:
         if (out / "manifest.jsonl").is_file() and manifest_lines(out):
             break
         time.sleep(0.05)
+    assert process.poll() is None, "the batch ended before it could be interrupted"
     os.killpg(process.pid, signal.SIGINT)     # what a terminal's Ctrl-C does
     _, err = process.communicate(timeout=LIMIT)
     assert process.returncode == 130, err.decode()[-2000:]
