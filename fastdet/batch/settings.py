@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
@@ -46,7 +46,7 @@ class BatchSettings:
         Threads each task's detector scores scales on (Numba and OpenCV).
     """
 
-    model_bytes: bytes
+    model_bytes: bytes = field(repr=False)
     model_sha256: str
     detector_config: DetectorConfig
     track_config: TrackConfig
@@ -69,6 +69,7 @@ class BatchSettings:
         return f"fastdet-batch-{self.model_sha256[:16]}-{self.config_sha256[:16]}-t{self.threads}"
 
     def detections_suffix(self):
+        """Suffix of the detections files (``.jsonl``, ``.csv``, ``.txt``)."""
         return DETECTION_SUFFIXES[self.detections_format]
 
 
