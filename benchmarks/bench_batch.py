@@ -100,7 +100,9 @@ class BatchScaling:
     timeout = 3600
 
     def setup_cache(self):
-        folder = Path(tempfile.mkdtemp(prefix="fastdet-bench-batch-clips-"))
+        # asv runs this in a folder of its own, which it removes after the benchmarks.
+        folder = Path("batch-clips").resolve()
+        folder.mkdir()
         _looped_clip(folder / "long.mp4", FRAMES)
         copies = folder / "copies"
         copies.mkdir()
