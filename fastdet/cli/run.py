@@ -149,7 +149,7 @@ def _check_outputs(args, out, detections):
         refuse_overwriting_inputs(output, inputs)
     if out is not None and detections is not None and (
             str(out) == str(detections) == STDOUT or _same_file(out, detections)):
-        raise InputError("--out and --detections name the same file")
+        raise InputError(f"cannot write {out}: --out and --detections name the same file")
 
 
 def _track_config(args):
