@@ -15,9 +15,10 @@ error).
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
-from urllib.parse import urlparse
+from urllib.parse import unquote, urlparse
 
 from ..errors import InputError
 from ..files.atomic import STDOUT, output_in_folder, refuse_overwriting_inputs
@@ -127,8 +128,9 @@ def default_output(video):
     if _is_file(video):
         video = Path(video)
         return output_in_folder(video.parent, f"{video.stem}_fastdet.mp4")
-    stem = Path(urlparse(str(video)).path).stem
-    stem = "stream" if stem in ("", ".", "..") else stem
+    # The last part of the URL's path, decoded, in plain characters, never hidden.
+    stem = re.sub(r"[^\w.-]", "_", Path(unquote(urlparse(str(video)).path)).stem).lstrip(".")
+    stem = stem or "stream"
     stem = f"camera{stem}" if stem.isdigit() else stem
     return output_in_folder(Path("."), f"{stem}_fastdet.mp4")
 

@@ -155,11 +155,11 @@ def video_frames(source):
     """Frame indices of a video (a path or its bytes), from its timestamps; fails if damaged."""
     with av.open(io.BytesIO(source) if isinstance(source, bytes) else str(source)) as video:
         stream = video.streams.video[0]
-        rate = stream.average_rate or Fraction(12)
+        # Read while the container is open: a closed stream's fields are garbage.
+        step = stream.time_base * (stream.average_rate or Fraction(12))
         frames = list(video.decode(stream))
     assert frames and not any(frame.is_corrupt for frame in frames)
-    first = frames[0].pts
-    return [round((frame.pts - first) * stream.time_base * rate) for frame in frames]
+    return [round((frame.pts - frames[0].pts) * step) for frame in frames]
 
 
 def detection_frames(source, fmt="jsonl"):
