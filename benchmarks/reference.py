@@ -285,6 +285,8 @@ class ReferenceDetector:
         if weighting == "margin":
             return scores - self.config.search.decision_threshold
         per_scale = np.array([plan.heat_weight for plan in self.plans(frame_size)])
+        if weighting == "margin_area":
+            return (scores - self.config.search.decision_threshold) * per_scale[scale_index]
         return per_scale[scale_index]
 
     def heatmap(self, frame):

@@ -9,6 +9,7 @@ Public API::
     with fastdet.VideoSource("clip.mp4") as video: ...  # files, URLs, cameras: BGR frames
     with fastdet.VideoSink("out.mp4", video.fps, video.size) as sink: sink.write(frame)
     fastdet.process_video("clip.mp4", "out.mp4")    # the pipelined `fastdet run`
+    records = fastdet.batch(["footage/"], "out/")   # many videos on Dask (imported on first use)
 """
 
 from .detector.config import DetectorConfig, load_config
@@ -29,6 +30,8 @@ _LAZY = {
     "VideoSource": ("fastdet.video.source", "VideoSource"),
     "VideoSink": ("fastdet.video.sink", "VideoSink"),
     "process_video": ("fastdet.video.run", "process_video"),
+    # The batch package is itself callable: fastdet.batch(inputs, out_dir, ...).
+    "batch": ("fastdet.batch", None),
 }
 
 
@@ -38,7 +41,9 @@ def __getattr__(name):
     import importlib
 
     module, attribute = _LAZY[name]
-    value = getattr(importlib.import_module(module), attribute)
+    value = importlib.import_module(module)
+    if attribute is not None:
+        value = getattr(value, attribute)
     globals()[name] = value
     return value
 
@@ -50,5 +55,5 @@ __all__ = [
     "ConfigError", "Detections", "Detector", "DetectorConfig", "FastdetError", "FeatureOptions",
     "InputError", "Model", "ModelError", "TrackConfig", "VideoPipeline", "VideoSink",
     "VideoSource", "hog", "load_config", "__version__", "load_model", "load_track_config",
-    "process_video", "train",
+    "batch", "process_video", "train",
 ]

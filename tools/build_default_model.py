@@ -1,19 +1,27 @@
-"""Rebuild the bundled model from the shared data: train, mine, retrain, tune.
+"""Rebuild the bundled model from the shared data: train, mine twice, retrain, tune.
 
 Run from the checkout's root (``FASTDET_DATA`` or ../shared/data)::
 
     python tools/build_default_model.py [--work DIR]
 
-1. train a first model on ``vehicles/`` and ``non-vehicles/`` (flipped and
-   jittered copies of the training crops, see ``fastdet.training.train``);
-2. mine its false hits on the annotated frames of ``test_video.mp4``
-   (``tests/data/test_video_annotations.json``, our own annotations; the test
-   images are never used for training or tuning) at a low decision threshold,
-   so borderline windows are found too;
-3. retrain with those hard negatives, C chosen by cross-validation on the
-   leak-free training folds -> ``fastdet/data/default_model.npz``;
-4. tune the detection thresholds on the same annotated video frames and
-   print them; they are the defaults in ``fastdet/config.py``.
+1. train a first model on ``vehicles/`` and ``non-vehicles/`` (flipped copies,
+   and a jittered copy seen through another camera -- brightness, contrast,
+   colour temperature, blur, resolution, JPEG -- of every training crop; see
+   ``fastdet.training.augment``);
+2. mine its false hits at a low decision threshold, so borderline windows are
+   found too, on the annotated frames of ``test_video.mp4``
+   (``tests/data/test_video_annotations.json``) and on the *development*
+   frames of the other camera's clip (``tests/data/other_camera_annotations.json``,
+   ``--split development``; its held-out frames are never mined or tuned on);
+3. train again with those hard negatives, and mine once more with that model;
+4. train the final model with both rounds of negatives, each source (GTI,
+   KITTI, Extras) also held out in turn for the report
+   -> ``fastdet/data/default_model.npz``;
+5. tune the detection thresholds, split size, box shape and box refinement on
+   the same annotated frames (test video + other-camera development frames)
+   and print them; they are the defaults in ``fastdet/detector/config.py``.
+
+The test images are never used for training or tuning.
 """
 
 from __future__ import annotations
@@ -33,11 +41,12 @@ from fastdet.files.shared_data import data_dir  # noqa: E402
 #: Feature options of the bundled model (chosen by the colour-space study).
 OPTIONS = FeatureOptions()
 #: Decision threshold used while mining: low, so borderline negatives are found too.
-#: -1.0 finds 305 windows on the 17 annotated frames against 120 at -0.5; the
-#: retrained model's leak-free accuracy is 99.39 % against 99.35 % with none.
 MINING_THRESHOLD = -1.0
-#: C values the final model chooses from by leak-free cross-validation.
-C_GRID = (3e-4, 1e-3, 3e-3)
+#: LinearSVC regularisation of every model.  Cross-validating it (``--cv``)
+#: took four more fits per value, half an hour on the shared two-core
+#: machine with the augmented copies; 1e-3 is what every experiment behind
+#: the figures in the README used.
+C = 1e-3
 
 
 def run(*args):
@@ -54,24 +63,29 @@ def main():
     work = Path(args.work or tempfile.mkdtemp(prefix="fastdet-build-"))
     work.mkdir(parents=True, exist_ok=True)
     data = data_dir()
-    video = data / "test_video.mp4"
-    annotations = ROOT / "tests" / "data" / "test_video_annotations.json"
+    videos = [data / "test_video.mp4", data / "other_camera" / "solidYellowLeft_lanes.mp4"]
+    annotations = [ROOT / "tests" / "data" / "test_video_annotations.json",
+                   ROOT / "tests" / "data" / "other_camera_annotations.json"]
+    annotated = [*videos, "--annotations", *annotations, "--split", "development"]
     options = ["--color-space", OPTIONS.color_space, "--orientations", OPTIONS.orientations,
                "--pixels-per-cell", OPTIONS.pixels_per_cell,
                "--cells-per-block", OPTIONS.cells_per_block, "--block-norm", OPTIONS.block_norm,
                "--spatial-size", OPTIONS.spatial_size, "--hist-bins", OPTIONS.hist_bins]
-    first = work / "first.npz"
-    run("train", data, "--out", first, *options)
     mining_config = work / "mining.toml"
     mining_config.write_text(f"[search]\ndecision_threshold = {MINING_THRESHOLD}\n")
-    mined = work / "hard-negatives"
-    run("mine", video, "--annotations", annotations, "--out", mined, "--model", first,
-        "--config", mining_config, "--threads", 1)
+    first = work / "first.npz"
+    run("train", data, "--out", first, "--C", C, *options)
+    mined = [work / "hard-negatives-1", work / "hard-negatives-2"]
+    run("mine", *annotated, "--out", mined[0], "--model", first, "--config", mining_config,
+        "--threads", 1)
+    second = work / "second.npz"
+    run("train", data, "--out", second, "--C", C, "--extra-negatives", mined[0], *options)
+    run("mine", *annotated, "--out", mined[1], "--model", second, "--config", mining_config,
+        "--threads", 1)
     final = ROOT / "fastdet" / "data" / "default_model.npz"
-    run("train", data, "--out", final, "--extra-negatives", mined, "--cv", "--C", *C_GRID,
+    run("train", data, "--out", final, "--C", C, "--extra-negatives", *mined, "--source-holdout",
         *options)
-    run("tune", video, "--annotations", annotations, "--model", final,
-        "--out", work / "tuned.toml")
+    run("tune", *annotated, "--model", final, "--out", work / "tuned.toml")
     print(f"intermediate files in {work}")
 
 

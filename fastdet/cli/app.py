@@ -27,6 +27,7 @@ import sys
 import threading
 
 from ..errors import FastdetError
+from .batch import add_batch_parser
 from .bench import add_bench_parser
 from .detect import add_detect_parser
 from .eval import add_eval_parser
@@ -66,8 +67,8 @@ def build_parser():
     _add_global_options(parser, False)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add_verb in (add_detect_parser, add_eval_parser, add_train_parser, add_mine_parser,
-                     add_tune_parser, add_run_parser, add_viz_parser, add_bench_parser,
-                     add_warmup_parser):
+                     add_tune_parser, add_run_parser, add_batch_parser, add_viz_parser,
+                     add_bench_parser, add_warmup_parser):
         add_verb(sub)
     _add_to_every_verb(parser)
     return parser

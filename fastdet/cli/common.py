@@ -41,6 +41,61 @@ def message_stream(*outputs):
             if os.path.samestat(os.stat(output), os.fstat(sys.stdout.fileno())):
                 return sys.stderr
     return sys.stdout
+def track_config(args):
+    """The ``[track]`` settings of ``--config``, with ``--every`` and ``--track`` applied."""
+    from ..errors import InputError
+    from ..video.config import load_track_config
+
+    config = load_track_config(args.config)
+    if args.every is not None:
+        if args.every < 1:
+            raise InputError(f"--every must be at least 1, got {args.every}")
+        config = config.replace(every=args.every)
+    if args.track:
+        config = config.replace(tracking=True)
+    return config
+
+
+def make_pipeline(args, threads=None):
+    """The :class:`~fastdet.video.pipeline.VideoPipeline` of ``args``' model and video options.
+
+    ``threads``: the detector's threads (default: ``--threads``).
+    """
+    from ..detector.config import load_config
+    from ..detector.detector import Detector
+    from ..video.pipeline import VideoPipeline
+
+    detector = Detector(model=args.model, config=load_config(args.config),
+                        threads=threads if threads is not None else getattr(args, "threads", None))
+    return VideoPipeline(detector, track_config(args))
+
+
+def add_annotation_options(parser, verb):
+    """``--annotations`` (one file, or one per source) and ``--split``."""
+    parser.add_argument("--annotations", required=True, nargs="+", metavar="A.json",
+                        help="vehicle boxes (images by file name, video frames as frame<N>): "
+                             "one file for all sources or one per source, in order")
+    parser.add_argument("--split", metavar="NAME",
+                        help=f"{verb} only the frames each annotation file lists under NAME in "
+                             f"its \"frames\" (files without splits are used whole)")
+
+
+def annotated_sources(sources, annotation_paths, split=None):
+    """``(source, annotations)`` pairs from the command line's sources and annotation files."""
+    from ..errors import InputError
+    from ..evaluation.annotations import load_annotations, load_splits, select_split
+
+    if len(annotation_paths) not in (1, len(sources)):
+        raise InputError(f"give one annotation file, or one per source ({len(sources)}), "
+                         f"not {len(annotation_paths)}")
+    loaded = []
+    for path in annotation_paths:
+        annotations, splits = load_annotations(path), load_splits(path)
+        loaded.append(select_split(annotations, splits, split) if split and splits
+                      else annotations)
+    if len(loaded) == 1:
+        loaded = loaded * len(sources)
+    return list(zip(sources, loaded))
 
 
 def log_to_stderr(line):

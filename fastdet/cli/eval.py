@@ -1,40 +1,89 @@
-"""``fastdet eval ANNOTATIONS.json IMAGE_DIR``: precision, recall, AP and IoU."""
+"""``fastdet eval ANNOTATIONS.json IMAGE_DIR|VIDEO``: detection and tracking quality.
+
+On a folder of images every annotated image is detected on its own.  On a
+video the frames go through the video pipeline exactly as ``fastdet run``
+sends them (``--every``, ``--track`` and the config's ``[track]`` section
+apply), the annotated frames (``frame<N>``) are scored, and when their
+vehicles carry identities (``"id"``) the tracking metrics of py-motmetrics
+(MOTA, IDF1, ID switches, fragmentations) are reported too.
+"""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+from ..errors import InputError
 from ..files.images import read_image
-from .common import add_model_options, compile_notice, make_detector
+from .common import add_model_options, compile_notice, make_detector, make_pipeline
 
 
 def add_eval_parser(subparsers):
     """Register ``eval`` on the ``fastdet`` command's sub-parsers."""
-    evaluate = subparsers.add_parser("eval",
-                                     help="precision, recall, AP and IoU on annotated images")
+    evaluate = subparsers.add_parser(
+        "eval", help="precision, recall, AP, IoU (and MOTA, IDF1 on videos) on annotated frames",
+        description="Detect on every annotated image of IMAGE_DIR, or run the video pipeline "
+                    "over VIDEO and score its annotated frames (frame<N>); annotations with "
+                    "vehicle ids also give the tracking metrics.")
     evaluate.add_argument("annotations", metavar="ANNOTATIONS.json")
-    evaluate.add_argument("image_dir", metavar="IMAGE_DIR")
+    evaluate.add_argument("source", metavar="IMAGE_DIR|VIDEO")
+    evaluate.add_argument("--split", metavar="NAME",
+                          help="only the images the annotation file's \"frames\" lists under "
+                               "NAME (e.g. development, held_out)")
     evaluate.add_argument("--iou", type=float, default=0.5, help="match threshold (default 0.5)")
     evaluate.add_argument("--json", action="store_true", help="print the full report as JSON")
     evaluate.add_argument("--voc", action="store_true",
                           help="plain VOC rule: a detection on a difficult box counts only when "
                                "it matches it at --iou (default: also when half of it lies "
                                "inside one)")
+    evaluate.add_argument("--every", type=int, metavar="N",
+                          help="video: full detection every N-th frame (as in fastdet run)")
+    evaluate.add_argument("--track", action="store_true",
+                          help="video: patch tracking between full detections (as in fastdet run)")
     add_model_options(evaluate)
     evaluate.set_defaults(handler=cmd_eval)
     return evaluate
 
 
 def cmd_eval(args):
-    """Detect on every annotated image and print the report."""
-    from ..evaluation.annotations import load_annotations
+    """Detect (or track) on every annotated frame and print the report."""
+    from ..evaluation.annotations import load_annotations, load_splits, select_split
     from ..evaluation.matching import DIFFICULT_COVER
     from ..evaluation.metrics import evaluate
 
-    annotations = load_annotations(args.annotations)
-    detector = make_detector(args)
-    image_dir = Path(args.image_dir)
+    annotations = select_split(load_annotations(args.annotations), load_splits(args.annotations),
+                               args.split)
+    source = Path(args.source)
+    cover = None if args.voc else DIFFICULT_COVER
+    if source.is_dir():
+        if args.every is not None or args.track:
+            raise InputError("--every and --track apply to a video, not to a folder of images")
+        results = _detect_images(make_detector(args), source, annotations)
+        tracking = None
+    elif source.is_file():
+        results, tracking = _track_video(args, source, annotations, cover)
+    else:
+        raise InputError(f"no such folder or video: {source}")
+    report = evaluate(results, annotations, iou_threshold=args.iou, difficult_cover=cover)
+    if args.json:
+        out = report.to_dict()
+        if tracking is not None:
+            out["tracking"] = tracking.to_dict()
+        print(json.dumps(out))
+        return 0
+    print(f"images {len(annotations)}  vehicles {report.n_gt}  "
+          f"TP {report.tp}  FP {report.fp}  FN {report.fn}")
+    print(f"precision {report.precision:.3f}  recall {report.recall:.3f}  "
+          f"AP{int(args.iou * 100)} {report.ap:.3f}  mean IoU {report.mean_iou:.3f}  "
+          f"IoU 10th percentile {report.iou_p10:.3f}")
+    if tracking is not None:
+        print(f"MOTA {tracking.mota:.3f}  IDF1 {tracking.idf1:.3f}  "
+              f"ID switches {tracking.id_switches}  fragmentations {tracking.fragmentations}  "
+              f"MOTP (IoU) {tracking.motp:.3f}  vehicles {tracking.vehicles}")
+    return 0
+
+
+def _detect_images(detector, image_dir, annotations):
     results = {}
     for index, name in enumerate(sorted(annotations)):
         image = read_image(image_dir / name)
@@ -43,13 +92,32 @@ def cmd_eval(args):
                 detector.warm_up(image)
         detections = detector(image)
         results[name] = (detections.xyxy, detections.score)
-    cover = None if args.voc else DIFFICULT_COVER
-    report = evaluate(results, annotations, iou_threshold=args.iou, difficult_cover=cover)
-    if args.json:
-        print(json.dumps(report.to_dict()))
-    else:
-        print(f"images {len(annotations)}  vehicles {report.n_gt}  "
-              f"TP {report.tp}  FP {report.fp}  FN {report.fn}")
-        print(f"precision {report.precision:.3f}  recall {report.recall:.3f}  "
-              f"AP{int(args.iou * 100)} {report.ap:.3f}  mean IoU {report.mean_iou:.3f}")
-    return 0
+    return results
+
+
+def _track_video(args, video, annotations, cover):
+    """Detections of the annotated frames, and the tracking report when ids are given."""
+    from ..video.evaluate import track_annotated_frames
+
+    pipeline = make_pipeline(args)
+    warm_up = getattr(pipeline.detector, "warm_up", None)
+    if warm_up is not None:
+        with compile_notice():
+            warm_up(_first_frame(video))
+    tracked = track_annotated_frames(pipeline, video, annotations)
+    results = {name: (d.xyxy, d.score) for name, d in tracked.items()}
+    with_ids = all(obj["id"] is not None
+                   for objects in annotations.values() for obj in objects if not obj["difficult"])
+    if not with_ids:
+        return results, None
+    from ..evaluation.mot import tracking_metrics
+
+    tracks = {name: (d.xyxy, d.track_id, d.score) for name, d in tracked.items()}
+    return results, tracking_metrics(tracks, annotations, args.iou, cover)
+
+
+def _first_frame(video):
+    from ..video.source import VideoSource
+
+    with VideoSource(video) as source:
+        return source.first_frame

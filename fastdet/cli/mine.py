@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .common import add_model_options, make_detector
+from .common import add_annotation_options, add_model_options, annotated_sources, make_detector
 
 
 def add_mine_parser(subparsers):
@@ -10,8 +10,7 @@ def add_mine_parser(subparsers):
     mine = subparsers.add_parser("mine",
                                  help="save false hits on annotated frames as negative crops")
     mine.add_argument("sources", nargs="+", metavar="SOURCE", help="images and/or videos")
-    mine.add_argument("--annotations", required=True, metavar="A.json",
-                      help="vehicle boxes: images by file name, video frames as frame<N>")
+    add_annotation_options(mine, "mine")
     mine.add_argument("--out", required=True, metavar="DIR", help="folder for the 64x64 crops")
     mine.add_argument("--max-iou", type=float, default=0.1,
                       help="a hit overlapping every vehicle less than this is a negative")
@@ -22,12 +21,11 @@ def add_mine_parser(subparsers):
 
 def cmd_mine(args):
     """Save the detector's false hits as 64x64 crops."""
-    from ..evaluation.annotations import load_annotations
     from ..training.mine import mine
 
-    annotations = load_annotations(args.annotations)
+    sources = annotated_sources(args.sources, args.annotations, args.split)
     detector = make_detector(args)
-    result = mine(detector, args.sources, annotations, args.out, max_iou=args.max_iou)
+    result = mine(detector, sources, None, args.out, max_iou=args.max_iou)
     print(f"{len(result.saved)} hard negatives from {result.hits} hits in {result.frames} "
           f"annotated frames written to {args.out}")
     return 0

@@ -24,7 +24,7 @@ from ..errors import InputError
 from ..files.atomic import STDOUT, output_in_folder, refuse_overwriting_inputs
 from ..video.detection_files import FORMATS
 from ..video.sink import ENCODERS
-from .common import compile_notice, message_stream
+from .common import compile_notice, make_pipeline, message_stream, track_config
 
 
 def add_run_parser(subparsers):
@@ -154,20 +154,7 @@ def _check_outputs(args, out, detections):
         raise InputError(f"cannot write {out}: --out and --detections name the same file")
 
 
-def _track_config(args):
-    from ..video.config import load_track_config
-
-    track_config = load_track_config(args.config)
-    if args.every is not None:
-        if args.every < 1:
-            raise InputError(f"--every must be at least 1, got {args.every}")
-        track_config = track_config.replace(every=args.every)
-    if args.track:
-        track_config = track_config.replace(tracking=True)
-    return track_config
-
-
-def _plan(args, track_config):
+def _plan(args, track):
     """How the run's threads are shared (the same plan process_video makes)."""
     import numba
 
@@ -175,20 +162,13 @@ def _plan(args, track_config):
 
     if args.threads is not None and args.threads < 1:
         raise InputError(f"--threads must be at least 1, got {args.threads}")
-    period = track_config.search_period
+    period = track.search_period
     return plan_threads(args.threads or numba.config.NUMBA_NUM_THREADS, args.out is not None,
                         1.0 / period if period else 1.0)
 
 
 def _pipeline(args):
-    from ..detector.config import load_config
-    from ..detector.detector import Detector
-    from ..video.pipeline import VideoPipeline
-
-    track_config = _track_config(args)
-    detector = Detector(model=args.model, config=load_config(args.config),
-                        threads=_plan(args, track_config).detector)
-    return VideoPipeline(detector, track_config)
+    return make_pipeline(args, threads=_plan(args, track_config(args)).detector)
 
 
 def cmd_run(args):
@@ -219,7 +199,7 @@ def cmd_run(args):
         raise InputError(f"--timeout must be positive, got {args.timeout}")
     # Problems with the input, then with the model or config, then with the
     # outputs: each is reported before any output file exists.
-    plan = _plan(args, _track_config(args))
+    plan = _plan(args, track_config(args))
     with VideoSource(args.video, args.start, args.end, threads=plan.decoder,
                      timeout=args.timeout, strict=args.strict) as source:
         pipeline = _pipeline(args)

@@ -45,6 +45,12 @@ def add_train_parser(subparsers):
     train.add_argument("--no-flip", action="store_true", help="no horizontal-flip augmentation")
     train.add_argument("--no-jitter", action="store_true",
                        help="no jittered (scaled, shifted) copy of each training crop")
+    train.add_argument("--no-photometric", action="store_true",
+                       help="keep the jittered copy's look (no brightness, contrast, colour, "
+                            "blur, resolution or JPEG changes)")
+    train.add_argument("--source-holdout", action="store_true",
+                       help="also hold out each source (GTI, KITTI, Extras) in turn and report "
+                            "its accuracy (one more fit per source)")
     train.add_argument("--folds", type=int, default=5, help="leak-free split: contiguous folds")
     train.add_argument("--extra-negatives", nargs="+", metavar="DIR",
                        help="more folders of non-vehicle crops")
@@ -73,11 +79,13 @@ def cmd_train(args):
         C = args.C[0] if len(args.C) == 1 and not args.cv else tuple(args.C)
     else:
         C = DEFAULT_C_GRID if args.cv else DEFAULT_C
+    from ..training.augment import Photometric
+
     model, (test_scores, test_labels) = train(
         args.data_dir, options=options, C=C, flip=not args.no_flip, jitter=not args.no_jitter,
-        n_folds=args.folds,
+        photometric=None if args.no_photometric else Photometric(), n_folds=args.folds,
         extra_negatives=args.extra_negatives or (), return_test_scores=True,
-        log=log_to_stderr)
+        log=log_to_stderr, hold_out_sources=args.source_holdout)
     model.save(args.out)
     messages = message_stream(args.out, args.report)
     if args.report:
@@ -89,6 +97,9 @@ def cmd_train(args):
           f"train time {report['total_seconds']:.1f} s", file=messages)
     print(f"accuracy: random split {report['random_split']['accuracy']:.4f}  "
           f"leak-free split {report['leak_free_split']['accuracy']:.4f}", file=messages)
+    for source, figures in (report["source_holdout"] or {}).items():
+        print(f"source {source} held out: accuracy {figures['accuracy']:.4f} on "
+              f"{figures['test_crops']} crops ({figures['vehicles']} vehicles)", file=messages)
     print(f"model written to {args.out}", file=messages)
     return 0
 

@@ -5,12 +5,14 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from .common import add_annotation_options, annotated_sources
+
 
 def add_tune_parser(subparsers):
     """Register ``tune`` on the ``fastdet`` command's sub-parsers."""
     tune = subparsers.add_parser("tune", help="choose detection thresholds on annotated frames")
     tune.add_argument("sources", nargs="+", metavar="SOURCE", help="videos and/or images")
-    tune.add_argument("--annotations", required=True, metavar="A.json")
+    add_annotation_options(tune, "tune on")
     tune.add_argument("--out", metavar="CONFIG.toml", help="write the best thresholds as TOML")
     tune.add_argument("--top", type=int, default=10, help="rows of the table to print")
     tune.add_argument("--model", metavar="M", help="model file (default: bundled)")
@@ -23,16 +25,15 @@ def cmd_tune(args):
     """Print the tuning table; write the best setting as TOML with ``--out``."""
     from ..detector.config import load_config
     from ..detector.model import load_model
-    from ..evaluation.annotations import load_annotations
     from ..files.atomic import atomic_path, check_writable, refuse_overwriting_inputs
     from ..training.tune import as_toml, format_results, tune
     from .common import message_stream
 
-    refuse_overwriting_inputs(args.out, [args.annotations, args.config, args.model,
+    refuse_overwriting_inputs(args.out, [*args.annotations, args.config, args.model,
                                          *args.sources])
     check_writable(args.out)
-    annotations = load_annotations(args.annotations)
-    results = tune(load_model(args.model), args.sources, annotations, load_config(args.config),
+    sources = annotated_sources(args.sources, args.annotations, args.split)
+    results = tune(load_model(args.model), sources, None, load_config(args.config),
                    log=lambda line: print(line, file=sys.stderr))
     messages = message_stream(args.out)
     print(format_results(results, top=args.top), file=messages)

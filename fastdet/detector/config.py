@@ -4,12 +4,11 @@ A TOML file only lists what it changes::
 
     [search]
     decision_threshold = 0.3
+    horizon = 0.55             # the horizon row, as a fraction of the frame height
 
-    [[search.scales]]          # giving scales replaces the whole list
-    window = 64
-    overlap = 0.5
-    x = [0, 1280]
-    y = [380, 660]
+    [[search.windows]]         # giving windows replaces the whole list
+    size = 0.08                # window side, as a fraction of the frame height
+    overlap = 0.75
 
     [heat]
     threshold = 2
@@ -17,13 +16,28 @@ A TOML file only lists what it changes::
     [boxes]
     min_size = 24
 
-Unknown sections or keys are rejected with their name.  Coordinates are in
-pixels of a ``search.reference_size`` frame (1280x720) and scaled
-proportionally for other frame sizes.
+Unknown sections or keys are rejected with their name.
+
+The default search is laid out relative to the frame and its horizon, so the
+same settings serve any camera and frame size: on a flat road a vehicle's
+width is proportional to how far below the horizon it stands, whatever the
+lens, so each window size is searched only in the band of rows where a
+vehicle of its size can stand (:class:`WindowConfig`; the plan is
+:func:`fastdet.detector.plan.plan_scales`), and the small windows, which
+only fit far vehicles, only near the middle of the frame, where the road
+vanishes.  An explicit list of ``[[search.scales]]`` (window, overlap and
+region in pixels of a ``search.reference_size`` frame, 1280x720, scaled
+proportionally for other frame sizes: the form configurations had before)
+replaces the windows; ``fastdet/data/published_search.toml`` is one.
+
+Other pixel settings (``[boxes] min_size``, ``horizon_y``, ``[heat]
+split_min_size``, ``[track] search_radius``) are given for a
+``search.reference_size`` frame and scaled with the frame.
 
 The default thresholds and box-shape correction are the ones ``fastdet tune``
-chose for the bundled model on the annotated frames of the test video
-(``tools/build_default_model.py``); the test images play no part in them.
+chose for the bundled model on the development frames of the annotated
+videos (``tools/build_default_model.py``); the test images play no part in
+them.
 """
 
 from __future__ import annotations
@@ -40,6 +54,7 @@ else:  # pragma: no cover - exercised on Python 3.10 only
     import tomli as tomllib
 
 from ..errors import ConfigError
+from .refine import N_FEATURES
 
 
 def _is_number(value):
@@ -90,6 +105,36 @@ class ScaleConfig:
                                   f"got {list(span)!r}")
 
 
+@dataclass(frozen=True)
+class WindowConfig:
+    """One window size of the frame-relative search.
+
+    Parameters
+    ----------
+    size : float
+        Window side as a fraction of the frame height.
+    overlap : float
+        Fraction in [0, 1) by which neighbouring windows overlap (both
+        axes); the step is rounded to whole HOG cells.
+
+    Notes
+    -----
+    Where the windows of a size lie follows from :class:`SearchConfig`'s
+    ``horizon``, ``band``, ``margin`` and ``reach``.
+    """
+
+    size: float
+    overlap: float
+
+    def __post_init__(self):
+        _number("search.windows.size", self.size)
+        if not 0 < self.size <= 1:
+            raise ConfigError(f"search.windows.size must be in (0, 1] (a fraction of the frame "
+                              f"height), got {self.size!r}")
+        if not (isinstance(self.overlap, (int, float)) and 0 <= self.overlap < 1):
+            raise ConfigError(f"search.windows.overlap must be in [0, 1), got {self.overlap!r}")
+
+
 #: The five scales of the published pipeline this project starts from
 #: (``fastdet/data/published_search.toml`` restores them).
 PUBLISHED_SCALES = (
@@ -100,16 +145,10 @@ PUBLISHED_SCALES = (
     ScaleConfig(128, 0.75, (0, 1280), (360, 630)),
 )
 
-#: The default search: the published scales with the 64-pixel one moved.
-#: Published, it covers only the middle third of the frame (x 426-853) with a
-#: 32-pixel step, so a car 64-100 pixels wide in any other lane falls between
-#: the 48- and 112-pixel scales: the white car of test3 (88x53 at x 872) is
-#: missed.  Here it spans the whole width with the 0.75 overlap of the large
-#: scales, over the band where a 64-pixel car can stand (y 396-500: on a flat
-#: road its bottom edge lies a fixed distance below the horizon; lower down,
-#: cars are larger and the 112- and 128-pixel scales cover them).  Cost: 159
-#: more windows (1020) and 0.35 ms per frame; see the README's quality section.
-DEFAULT_SCALES = (
+#: The pixel scales fastdet searched by default before the frame-relative
+#: search: the published ones with the 64-pixel scale over the whole width
+#: at overlap 0.75 and y 396-500 (``fastdet/data/previous_search.toml``).
+PREVIOUS_SCALES = (
     PUBLISHED_SCALES[0],
     PUBLISHED_SCALES[1],
     ScaleConfig(64, 0.75, (0, 1280), (396, 500)),
@@ -117,33 +156,98 @@ DEFAULT_SCALES = (
     PUBLISHED_SCALES[4],
 )
 
+#: The default window sizes: 32, 48, 64, 96 and 128 pixels on a 720-row
+#: frame, as fractions of the frame height (0.0444 ... 0.1778).  At 720
+#: rows the 64-pixel windows are read from the frame without resizing.
+DEFAULT_WINDOWS = (
+    WindowConfig(32 / 720, 0.5),
+    WindowConfig(48 / 720, 0.5),
+    WindowConfig(64 / 720, 0.75),
+    WindowConfig(96 / 720, 0.75),
+    WindowConfig(128 / 720, 0.75),
+)
+
 
 @dataclass(frozen=True)
 class SearchConfig:
     """Where and how windows are searched and which count as hits.
 
+    The default layout is relative to the frame: each of ``windows`` is
+    searched in a band of rows around the ``horizon`` (where a vehicle of
+    the window's size stands on a flat road) and within ``reach`` window
+    sides of the frame's middle column.  A non-empty ``scales`` lays the
+    search out in pixels instead (the windows are then not used).
+
     Parameters
     ----------
+    windows : tuple of WindowConfig
+        Window sizes of the frame-relative search.
+    horizon : float
+        Row of the horizon (the vanishing point of the road) as a fraction
+        of the frame height from the top.
+    band : tuple of float
+        ``(low, high)``: a window's top edge lies between ``horizon + low *
+        side`` and ``horizon + high * side``.  A vehicle's width is about
+        twice its bottom edge's distance below the horizon, whatever the
+        lens, so a window framing it has its top edge 0.6 to 0.2 sides above
+        the horizon (trucks and near, oblique cars at the high end).
+    margin : float
+        Rows searched beyond every band, above and below, as a fraction of
+        the frame height: the camera pitches and the road is not flat.
+    reach : float
+        Window centres lie at most this many window sides left or right of
+        the frame's middle column: a vehicle ``n`` of its own widths beside
+        the road's vanishing point is ``n`` vehicle widths to the side, so
+        10 reaches five lanes either way.  Large windows reach the frame
+        edges anyway.
     scales : tuple of ScaleConfig
+        An explicit pixel layout (empty: the frame-relative one).
     reference_size : tuple of int
-        ``(width, height)`` the scale coordinates refer to.
+        ``(width, height)`` the pixel settings (``scales``, the box filters,
+        ...) refer to.
     decision_threshold : float
         A window is a hit when its SVM margin exceeds this.
     """
 
-    scales: tuple = DEFAULT_SCALES
+    windows: tuple = DEFAULT_WINDOWS
+    horizon: float = 0.58
+    band: tuple = (-0.6, -0.2)
+    margin: float = 0.02
+    reach: float = 10.0
+    scales: tuple = ()
     reference_size: tuple = (1280, 720)
-    decision_threshold: float = -0.25
+    decision_threshold: float = -0.5
 
     def __post_init__(self):
+        object.__setattr__(self, "windows", tuple(self.windows))
+        object.__setattr__(self, "band", tuple(self.band))
         object.__setattr__(self, "scales", tuple(self.scales))
         object.__setattr__(self, "reference_size", tuple(self.reference_size))
-        if not self.scales:
-            raise ConfigError("search.scales must list at least one scale")
+        if not self.scales and not self.windows:
+            raise ConfigError("search.windows (or search.scales) must list at least one size")
         size = self.reference_size
         if len(size) != 2 or not all(isinstance(v, int) and v > 0 for v in size):
             raise ConfigError(f"search.reference_size must be [width, height], got {list(size)!r}")
         _number("search.decision_threshold", self.decision_threshold)
+        _number("search.horizon", self.horizon)
+        if not 0 < self.horizon < 1:
+            raise ConfigError(f"search.horizon must be in (0, 1) (a fraction of the frame "
+                              f"height), got {self.horizon!r}")
+        if (len(self.band) != 2 or not all(isinstance(v, (int, float)) and math.isfinite(v)
+                                           for v in self.band)
+                or not self.band[0] <= self.band[1]):
+            raise ConfigError(f"search.band must be [low, high] with low <= high, "
+                              f"got {list(self.band)!r}")
+        _number("search.margin", self.margin)
+        if self.margin < 0:
+            raise ConfigError(f"search.margin must be >= 0, got {self.margin!r}")
+        if not (isinstance(self.reach, (int, float)) and not isinstance(self.reach, bool)
+                and self.reach > 0):
+            raise ConfigError(f"search.reach must be a number > 0, got {self.reach!r}")
+
+
+#: What a hit adds to the heat (see :class:`HeatConfig`).
+HEAT_WEIGHTINGS = ("count", "area", "margin", "margin_area")
 
 
 @dataclass(frozen=True)
@@ -154,10 +258,12 @@ class HeatConfig:
     ----------
     threshold : float
         Pixels whose heat exceeds this belong to a vehicle.
-    weighting : {'count', 'area', 'margin'}
-        Heat each hit adds: 1; ``(64 / window side) ** 2`` (small windows count
-        more, as one published pipeline does); or its SVM margin above the
-        decision threshold.
+    weighting : {'count', 'area', 'margin', 'margin_area'}
+        Heat each hit adds: 1; ``(64 / window side) ** 2`` with the side in
+        reference-frame pixels (small windows count more, as one published
+        pipeline does); its SVM margin above the decision threshold; or the
+        product of the last two (a small, far car is framed by few windows
+        of one size, a near one by many of several).
     connectivity : {4, 8}
         Pixel connectivity of the labelling.
     peak_fraction : float
@@ -176,9 +282,9 @@ class HeatConfig:
     threshold: float = 3.0
     weighting: str = "margin"
     connectivity: int = 8
-    peak_fraction: float = 0.3
+    peak_fraction: float = 0.5
     split: bool = True
-    split_min_size: float = 48.0
+    split_min_size: float = 32.0
 
     def __post_init__(self):
         _number("heat.threshold", self.threshold)
@@ -188,11 +294,26 @@ class HeatConfig:
         if not isinstance(self.split, bool):
             raise ConfigError(f"heat.split must be true or false, got {self.split!r}")
         _number("heat.split_min_size", self.split_min_size)
-        if self.weighting not in ("count", "area", "margin"):
-            raise ConfigError(f"heat.weighting must be 'count', 'area' or 'margin', "
+        if self.weighting not in HEAT_WEIGHTINGS:
+            raise ConfigError(f"heat.weighting must be one of {', '.join(HEAT_WEIGHTINGS)}, "
                               f"got {self.weighting!r}")
         if self.connectivity not in (4, 8):
             raise ConfigError(f"heat.connectivity must be 4 or 8, got {self.connectivity!r}")
+
+
+#: The box refinement ``fastdet tune`` fitted for the bundled model on the
+#: development frames (``tools/build_default_model.py``): rows x1, y1, x2,
+#: y2 over the features of :func:`fastdet.detector.refine.heat_features`.
+DEFAULT_REFINE = (
+    (0.27312, 0.08669, 0.04828, 0.06029, -0.03011, 0.30224, 0.02330, -0.04854, 0.01643,
+     0.13859, 0.03097, -0.02454, -0.03778, 0.28056, -0.48630),
+    (0.02455, 0.01545, 0.02511, 0.03887, 0.02195, 0.04369, 0.04678, 0.01192, -0.00095, 0.03450,
+     0.02600, -0.00104, -0.01181, 0.12592, -0.21905),
+    (0.90507, -0.07789, -0.04873, 0.15153, 0.15427, 0.02751, -0.08195, -0.11701, 0.23935,
+     0.04428, 0.07219, 0.03708, 0.04564, 0.33221, 0.29332),
+    (0.47952, -0.01413, -0.03140, 0.00837, 0.12941, 0.01076, -0.01880, -0.07573, 0.17063,
+     0.00259, 0.05830, 0.00086, 0.03658, 0.04495, 0.04172),
+)
 
 
 @dataclass(frozen=True)
@@ -213,17 +334,31 @@ class BoxConfig:
         the (wide) cars they cover.  Fitted by ``fastdet tune``.
     center_dy : float
         Vertical shift of the box centre, as a fraction of the box height.
+    refine : tuple of tuple of float
+        Box refinement (:mod:`fastdet.detector.refine`): four rows (x1, y1,
+        x2, y2) of weights over the box's heat features; when given they
+        place the edges instead of the shape correction.  Fitted by
+        ``fastdet tune``; empty: shape correction only.
     """
 
     min_size: float = 24.0
     min_aspect: float = 0.5
     max_aspect: float = 3.0
     horizon_y: float = 380.0
-    width_scale: float = 1.2
-    height_scale: float = 0.8
+    width_scale: float = 1.5
+    height_scale: float = 1.0
     center_dy: float = 0.05
+    refine: tuple = DEFAULT_REFINE
 
     def __post_init__(self):
+        object.__setattr__(self, "refine", tuple(tuple(row) for row in self.refine))
+        if self.refine and (len(self.refine) != 4 or any(
+                len(row) != N_FEATURES or not all(isinstance(v, (int, float))
+                                                  and not isinstance(v, bool)
+                                                  and math.isfinite(v) for v in row)
+                for row in self.refine)):
+            raise ConfigError(f"boxes.refine must be 4 rows of {N_FEATURES} numbers "
+                              f"(or empty)")
         for name in ("min_size", "min_aspect", "max_aspect", "horizon_y", "width_scale",
                      "height_scale", "center_dy"):
             _number(f"boxes.{name}", getattr(self, name))
@@ -258,22 +393,36 @@ class DetectorConfig:
             raise ConfigError(f"unknown config section(s): {', '.join(unknown)}")
         built = {}
         for name, section_cls in sections.items():
-            values = data.get(name, {})
-            if not isinstance(values, dict):
-                raise ConfigError(f"[{name}] must be a table, got {values!r}")
-            values = dict(values)
-            if name == "search" and "scales" in values:
-                if not isinstance(values["scales"], list):
-                    raise ConfigError("search.scales must be a list of [[search.scales]] tables")
-                values["scales"] = tuple(_build(ScaleConfig, scale, "search.scales")
-                                         for scale in values["scales"])
+            values = _table(data.get(name, {}), name)
+            if name == "search":
+                values = _search_values(values)
             built[name] = _build(section_cls, values, name)
         return cls(**built)
 
 
-def _build(section_cls, values, section):
+def _search_values(values):
+    """``[search]`` with its lists of tables built; listing scales drops the windows."""
+    if "scales" in values and "windows" in values:
+        raise ConfigError("search.scales (pixels) and search.windows (fractions of the frame) "
+                          "are two layouts of the search: list one of them")
+    for key, item_cls in (("scales", ScaleConfig), ("windows", WindowConfig)):
+        if key in values:
+            if not isinstance(values[key], list):
+                raise ConfigError(f"search.{key} must be a list of tables ([[search.{key}]])")
+            values[key] = tuple(_build(item_cls, _table(item, f"search.{key}"), f"search.{key}")
+                                for item in values[key])
+    if "scales" in values:
+        values["windows"] = ()
+    return values
+
+
+def _table(values, section):
     if not isinstance(values, dict):
-        raise ConfigError(f"[{section}] must be a table")
+        raise ConfigError(f"[{section}] must be a table, got {values!r}")
+    return dict(values)
+
+
+def _build(section_cls, values, section):
     known = {f.name for f in dataclasses.fields(section_cls)}
     unknown = sorted(set(values) - known)
     if unknown:

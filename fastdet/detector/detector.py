@@ -399,7 +399,7 @@ class Detector:
             ``(width, height)`` of the frame, for the size-relative filters.
         """
         boxes, peaks = self.box_finder.heat_components(heat, origin, frame_size)
-        return self.box_finder.finish_boxes(boxes, peaks, frame_size)
+        return self.box_finder.finish_boxes(boxes, peaks, frame_size, heat, origin)
 
     def warm_up(self, frame):
         """Detect once on ``frame`` so that every kernel a detection needs is loaded.

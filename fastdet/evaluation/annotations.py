@@ -3,10 +3,15 @@
 An annotation file is::
 
     {"images": {"test1.jpg": [{"box": [x1, y1, x2, y2], "label": "car",
-                               "difficult": false}, ...], ...}}
+                               "difficult": false, "id": 3}, ...], ...},
+     "frames": {"development": ["frame0125", ...], "held_out": [...]}}
 
-with video frames named ``frame<N>``.  Boxes marked ``difficult`` are
-neither required nor penalised (see :mod:`fastdet.evaluation.matching`).
+with video frames named ``frame<N>`` (N the 0-based frame index, any number
+of digits).  Boxes marked ``difficult`` are neither required nor penalised
+(see :mod:`fastdet.evaluation.matching`).  ``id`` (optional) is the vehicle's
+identity, the same in every frame, which the tracking metrics need.  The
+optional ``frames`` object names subsets of the images (*splits*): frames
+tuned on are kept apart from the frames reported as held out.
 """
 
 from __future__ import annotations
@@ -28,15 +33,15 @@ def load_annotations(path):
     path : str or Path
         JSON file of the form ``{"images": {name: [object, ...]}}`` where each
         object has ``"box": [x1, y1, x2, y2]`` (numbers, ``x2 > x1``,
-        ``y2 > y1``) and optionally ``"label"`` (str, default ``"car"``) and
-        ``"difficult"`` (bool, default ``False``).  Other top-level keys
-        (such as ``"format"``, a description) are ignored.
+        ``y2 > y1``) and optionally ``"label"`` (str, default ``"car"``),
+        ``"difficult"`` (bool, default ``False``) and ``"id"`` (int).  Other
+        top-level keys (such as ``"format"``, a description) are ignored.
 
     Returns
     -------
     dict of str to list of dict
         Image name to its objects, each normalised to
-        ``{"box": [float x4], "label": str, "difficult": bool}``.
+        ``{"box": [float x4], "label": str, "difficult": bool, "id": int or None}``.
 
     Raises
     ------
@@ -44,6 +49,71 @@ def load_annotations(path):
         With a one-line message naming the file and the first problem: the
         file is missing, is not JSON, or does not have the structure above.
     """
+    path, data = _read(path)
+    annotations = {}
+    for image_name, objects in data["images"].items():
+        if not isinstance(objects, list):
+            raise InputError(f"{path}: images[{image_name!r}] must be a list of objects")
+        annotations[image_name] = [_parse_object(obj, f"{path}: images[{image_name!r}][{index}]")
+                                   for index, obj in enumerate(objects)]
+    return annotations
+
+
+def load_splits(path):
+    """The named subsets of an annotation file's images (its ``"frames"`` object).
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    dict of str to list of str
+        Split name (e.g. ``"development"``, ``"held_out"``) to image names,
+        each an annotated image; empty when the file names no splits.
+
+    Raises
+    ------
+    InputError
+        When ``"frames"`` is not an object of lists of annotated image names.
+    """
+    path, data = _read(path)
+    splits = data.get("frames", {})
+    if not isinstance(splits, dict):
+        raise InputError(f"{path}: \"frames\" must map split names to lists of images")
+    for name, images in splits.items():
+        if not isinstance(images, list) or not all(isinstance(i, str) for i in images):
+            raise InputError(f"{path}: frames[{name!r}] must be a list of image names")
+        missing = [image for image in images if image not in data["images"]]
+        if missing:
+            raise InputError(f"{path}: frames[{name!r}] names {len(missing)} image(s) with no "
+                             f"annotations, e.g. {missing[0]!r}")
+    return {name: list(images) for name, images in splits.items()}
+
+
+def frame_number(name):
+    """The 0-based frame index of a video frame's name ``frame<N>``, or ``None``."""
+    digits = name[5:] if name.startswith("frame") else ""
+    return int(digits) if digits.isdigit() else None
+
+
+def select_split(annotations, splits, name):
+    """The annotations of one split's images (all of them for ``name=None``).
+
+    Raises
+    ------
+    InputError
+        When the file names no split ``name``.
+    """
+    if name is None:
+        return annotations
+    if name not in splits:
+        known = ", ".join(sorted(splits)) or "none"
+        raise InputError(f"no split {name!r} in the annotations (splits: {known})")
+    return {image: annotations[image] for image in splits[name]}
+
+
+def _read(path):
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{path} is a folder, not an annotation file")
@@ -59,13 +129,7 @@ def load_annotations(path):
         raise InputError(f"{path} is not valid JSON: {exc}") from None
     if not isinstance(data, dict) or not isinstance(data.get("images"), dict):
         raise InputError(f"{path} must hold a JSON object with an \"images\" object")
-    annotations = {}
-    for image_name, objects in data["images"].items():
-        if not isinstance(objects, list):
-            raise InputError(f"{path}: images[{image_name!r}] must be a list of objects")
-        annotations[image_name] = [_parse_object(obj, f"{path}: images[{image_name!r}][{index}]")
-                                   for index, obj in enumerate(objects)]
-    return annotations
+    return path, data
 
 
 def _parse_object(obj, where):
@@ -82,7 +146,11 @@ def _parse_object(obj, where):
     difficult = obj.get("difficult", False)
     if not isinstance(difficult, bool):
         raise InputError(f"{where}.difficult must be true or false, got {difficult!r}")
-    return {"box": [float(v) for v in box], "label": label, "difficult": difficult}
+    identity = obj.get("id")
+    if identity is not None and (isinstance(identity, bool) or not isinstance(identity, int)):
+        raise InputError(f"{where}.id must be an integer, got {identity!r}")
+    return {"box": [float(v) for v in box], "label": label, "difficult": difficult,
+            "id": identity}
 
 
 def _is_coordinate(value):

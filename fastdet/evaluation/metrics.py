@@ -78,6 +78,9 @@ class EvalReport:
         images pooled and ranked by score (:func:`average_precision`).
     mean_iou : float
         Mean IoU of the true-positive matches.
+    iou_p10 : float
+        Their 10th percentile (linear interpolation): the mean hides the few
+        poorly placed boxes a user sees.
     tp, fp, fn : int
         True positives, false positives, missed non-difficult boxes.
     n_gt : int
@@ -97,13 +100,14 @@ class EvalReport:
     * no predictions: ``precision = 1.0`` (no wrong claims were made);
     * no non-difficult ground truth: ``recall = 1.0`` (nothing was missed)
       and ``ap = 0.0`` (AP is undefined; 0 never flatters);
-    * no true positives: ``mean_iou = 0.0``.
+    * no true positives: ``mean_iou = iou_p10 = 0.0``.
     """
 
     precision: float
     recall: float
     ap: float
     mean_iou: float
+    iou_p10: float
     tp: int
     fp: int
     fn: int
@@ -126,7 +130,7 @@ class EvalReport:
         dict
         """
         summary = {name: getattr(self, name) for name in
-                   ("precision", "recall", "ap", "mean_iou", "tp", "fp", "fn", "n_gt",
+                   ("precision", "recall", "ap", "mean_iou", "iou_p10", "tp", "fp", "fn", "n_gt",
                     "ignored", "iou_threshold", "difficult_cover")}
         if per_image:
             summary["images"] = {name: {"tp": match.tp, "fp": match.fp, "fn": match.fn,
@@ -189,11 +193,13 @@ def evaluate(results, annotations, iou_threshold=0.5, difficult_cover=DIFFICULT_
     tp = int(np.count_nonzero(labels == TRUE_POSITIVE))
     fp = int(np.count_nonzero(labels == FALSE_POSITIVE))
     n_gt = sum(m.n_positives for m in matches)
+    matched = ious[labels == TRUE_POSITIVE]
     return EvalReport(
         precision=tp / (tp + fp) if tp + fp else 1.0,
         recall=tp / n_gt if n_gt else 1.0,
         ap=average_precision(labels, scores, n_gt),
-        mean_iou=float(ious[labels == TRUE_POSITIVE].mean()) if tp else 0.0,
+        mean_iou=float(matched.mean()) if tp else 0.0,
+        iou_p10=float(np.percentile(matched, 10)) if tp else 0.0,
         tp=tp, fp=fp, fn=n_gt - tp, n_gt=n_gt,
         ignored=int(np.count_nonzero(labels == IGNORED)),
         iou_threshold=float(iou_threshold),

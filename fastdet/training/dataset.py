@@ -86,6 +86,19 @@ def list_dataset(data_dir, extra_negatives=()):
     return Dataset(paths, np.asarray(labels, dtype=np.int8), groups)
 
 
+def source_of(group):
+    """The source of a crop's group: the camera and collection it came from.
+
+    ``vehicles/GTI_Far`` and ``non-vehicles/GTI`` are both ``GTI``,
+    ``vehicles/KITTI_extracted`` is ``KITTI``, ``non-vehicles/Extras`` is
+    ``Extras``: the part of the first folder's name before an underscore.
+    Added negative folders (``extra:<name>``) are their own source.
+    """
+    if group.startswith("extra:"):
+        return group.split("/")[0]
+    return group.split("/")[-1].split("_")[0]
+
+
 def random_split(labels, test_fraction=0.2, seed=0):
     """Stratified random split; returns a boolean test mask."""
     rng = np.random.default_rng(seed)

@@ -9,6 +9,9 @@ count too, so a car is never saved as a negative -- save it as a 64x64 crop, and
 
 Sources are images (annotated under their file name) or videos (annotated as
 ``frame<N>``, N the 0-based frame index); only annotated frames are mined.
+Each source may come with annotations of its own (two videos both have a
+``frame0010``), and an annotation file's split (``--split development``)
+keeps held-out frames out of the training data.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import numpy as np
 from ..detector.features import WINDOW
 from ..detector.geometry import iou_matrix
 from ..errors import InputError
+from ..evaluation.annotations import frame_number
 from ..files.atomic import output_in_folder, refuse_overwriting_inputs
 from ..files.images import read_image, write_image
 from ..video.source import VideoSource
@@ -52,19 +56,42 @@ def annotated_frames(source, annotations):
     if not source.is_file():
         raise InputError(f"mining source not found: {source}")
     if source.suffix.lower() in VIDEO_SUFFIXES:
+        # Keys may have any number of digits (frame7 or frame0007).
+        wanted = {frame_number(key): key for key in annotations
+                  if frame_number(key) is not None}
+        if not wanted:
+            return
+        last = max(wanted)
         index = -1
 
-        def unannotated():  # asked before frame index + 1: leave it unconverted
-            return f"frame{index + 1:04d}" not in annotations
+        def unwanted():  # asked before frame index + 1: leave it unconverted
+            return index + 1 not in wanted
 
         with VideoSource(source) as video:
-            for index, frame in enumerate(video.frames(skip=unannotated)):
-                key = f"frame{index:04d}"
-                if frame is not None and key in annotations:
-                    yield key, frame
+            for index, frame in enumerate(video.frames(skip=unwanted)):
+                if frame is not None and index in wanted:
+                    yield wanted[index], frame
+                if index >= last:
+                    return
         return
     if source.name in annotations:
         yield source.name, read_image(source)
+
+
+def paired_sources(sources, annotations=None):
+    """``(source, annotations)`` pairs: each source with its own annotations or the shared ones.
+
+    Parameters
+    ----------
+    sources : iterable
+        Paths (annotated by ``annotations``) and/or ``(path, annotations)`` pairs.
+    annotations : dict, optional
+    """
+    for source in sources:
+        if isinstance(source, tuple):
+            yield source
+        else:
+            yield source, annotations
 
 
 def background_hits(boxes, vehicles, max_iou=0.1, max_cover=0.5):
@@ -107,10 +134,11 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
     ----------
     detector : fastdet.Detector
         Its ``search.decision_threshold`` decides what a hit is.
-    sources : iterable of str or Path
-        Images and/or videos.
+    sources : iterable
+        Images and/or videos, each a path or a ``(path, annotations)`` pair.
     annotations : dict
-        As returned by :func:`fastdet.evaluation.annotations.load_annotations`.
+        As returned by :func:`fastdet.evaluation.annotations.load_annotations`,
+        for the sources given as bare paths.
     out_dir : str or Path
         Folder for the crops (created); files are ``<source>_<key>_<n>.png``.
     max_iou : float
@@ -127,12 +155,12 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
     out_dir.mkdir(parents=True, exist_ok=True)
     frames = hits_total = 0
     saved = []
-    for source in sources:
-        for key, frame in annotated_frames(source, annotations):
+    for source, truth_of in paired_sources(sources, annotations):
+        for key, frame in annotated_frames(source, truth_of):
             frames += 1
             hits = detector.hits(frame)
             hits_total += len(hits.scores)
-            truth = np.array([a["box"] for a in annotations[key]], dtype=np.float64).reshape(-1, 4)
+            truth = np.array([a["box"] for a in truth_of[key]], dtype=np.float64).reshape(-1, 4)
             negative = background_hits(hits.boxes, truth, max_iou)
             for n, box in enumerate(hits.boxes[negative]):
                 x1, y1, x2, y2 = (int(v) for v in box)

@@ -5,7 +5,14 @@ from pathlib import Path
 import pytest
 
 import fastdet
-from fastdet.detector.config import DEFAULT_SCALES, PUBLISHED_SCALES, DetectorConfig, load_config
+from fastdet.detector.config import (
+    DEFAULT_WINDOWS,
+    PREVIOUS_SCALES,
+    PUBLISHED_SCALES,
+    DetectorConfig,
+    WindowConfig,
+    load_config,
+)
 from fastdet.errors import ConfigError
 
 
@@ -15,15 +22,22 @@ def write(tmp_path, text):
     return path
 
 
-def test_defaults_are_the_five_published_scales_with_the_64_pixel_one_moved():
+def test_defaults_are_frame_relative_windows():
     config = load_config(None)
-    assert config.search.scales == DEFAULT_SCALES
-    assert [s.window for s in config.search.scales] == [32, 48, 64, 112, 128]
-    changed = [i for i in range(5) if DEFAULT_SCALES[i] != PUBLISHED_SCALES[i]]
-    assert changed == [2]
-    assert (DEFAULT_SCALES[2].overlap, DEFAULT_SCALES[2].x, DEFAULT_SCALES[2].y) == (
-        0.75, (0, 1280), (396, 500))
-    assert PUBLISHED_SCALES[2].x == (426, 853)
+    assert config.search.scales == ()
+    assert config.search.windows == DEFAULT_WINDOWS
+    # 32 to 128 pixels on a 720-row frame, as the published scales.
+    sides = [round(w.size * 720) for w in DEFAULT_WINDOWS]
+    assert sides[0] == 32 and sides[-1] == 128 and sides == sorted(sides)
+    assert 0 < config.search.horizon < 1
+
+
+@pytest.mark.parametrize("name, scales", [("published_search.toml", PUBLISHED_SCALES),
+                                          ("previous_search.toml", PREVIOUS_SCALES)])
+def test_shipped_pixel_searches_load_as_before(name, scales):
+    config = load_config(Path(fastdet.__file__).parent / "data" / name)
+    assert config.search.scales == scales
+    assert config.search.windows == ()
 
 
 def test_shipped_published_search_restores_the_published_scales():
@@ -38,7 +52,14 @@ def test_override_keeps_unlisted_defaults(tmp_path):
     assert config.heat.threshold == 3
     assert config.search.decision_threshold == -0.5
     assert config.heat.connectivity == DetectorConfig().heat.connectivity
-    assert config.search.scales == DEFAULT_SCALES
+    assert config.search.windows == DEFAULT_WINDOWS
+
+
+def test_windows_replace_the_list(tmp_path):
+    config = load_config(write(tmp_path, "[search]\nhorizon = 0.5\n"
+                                         "[[search.windows]]\nsize = 0.1\noverlap = 0.5\n"))
+    assert config.search.windows == (WindowConfig(0.1, 0.5),)
+    assert config.search.horizon == 0.5
 
 
 def test_scales_replace_the_list(tmp_path):
@@ -46,6 +67,7 @@ def test_scales_replace_the_list(tmp_path):
                                          "x = [0, 1280]\ny = [380, 600]\n"))
     assert len(config.search.scales) == 1
     assert config.search.scales[0].window == 80
+    assert config.search.windows == ()  # an explicit pixel layout replaces the windows
 
 
 @pytest.mark.parametrize("text, words", [
@@ -59,6 +81,15 @@ def test_scales_replace_the_list(tmp_path):
     ("[[search.scales]]\nwindow = 64\noverlap = 0.5\nx = [0, 100]\n", "y"),
     ("[boxes]\nmin_aspect = 4.0\nmax_aspect = 3.0\n", "min_aspect"),
     ("[search\n", "not valid TOML"),
+    ("[search]\nhorizon = 1.5\n", "horizon"),
+    ("[search]\nband = [0.2, -0.6]\n", "band"),
+    ("[search]\nmargin = -0.1\n", "margin"),
+    ("[search]\nreach = 0\n", "reach"),
+    ("[[search.windows]]\nsize = 2.0\noverlap = 0.5\n", "size"),
+    ("[[search.windows]]\nsize = 0.1\n", "overlap"),
+    ("[search]\nwindows = 3\n", "list of tables"),
+    ("[[search.windows]]\nsize = 0.1\noverlap = 0.5\n[[search.scales]]\nwindow = 64\n"
+     "overlap = 0.5\nx = [0, 10]\ny = [0, 10]\n", "list one of them"),
 ])
 def test_invalid_configs_name_the_problem(tmp_path, text, words):
     with pytest.raises(ConfigError) as info:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from fastdet.detector.config import (
-    DEFAULT_SCALES,
+    PREVIOUS_SCALES,
     PUBLISHED_SCALES,
     BoxConfig,
     DetectorConfig,
@@ -63,7 +63,7 @@ def test_frames_smaller_than_any_window_give_no_boxes(random_model, shape):
 
 @pytest.mark.parametrize("scales, grids", [
     (PUBLISHED_SCALES, [(2, 20), (6, 52), (6, 12), (6, 42), (5, 37)]),
-    (DEFAULT_SCALES, [(2, 20), (6, 52), (3, 77), (6, 42), (5, 37)]),
+    (PREVIOUS_SCALES, [(2, 20), (6, 52), (3, 77), (6, 42), (5, 37)]),
 ])
 def test_plans_follow_the_configured_grid(random_model, scales, grids):
     config = DetectorConfig(search=SearchConfig(scales=scales))
@@ -79,18 +79,53 @@ def test_plans_follow_the_configured_grid(random_model, scales, grids):
         assert plan.boxes[:, 1].min() >= y0 and plan.boxes[:, 3].max() <= y1
 
 
-def test_plans_scale_with_the_frame(random_model):
-    full = plan_scales(DetectorConfig(), random_model.options, (1280, 720))
-    half = plan_scales(DetectorConfig(), random_model.options, (640, 360))
-    assert [p.grid for p in half] == [p.grid for p in full]
-    assert half[0].roi == (160, 198, 480, 230)
-    np.testing.assert_allclose(half[0].boxes, full[0].boxes / 2, atol=1)
+@pytest.mark.parametrize("config", [DetectorConfig(),
+                                    DetectorConfig(search=SearchConfig(scales=PREVIOUS_SCALES))])
+def test_plans_scale_with_the_frame(random_model, config):
+    full = plan_scales(config, random_model.options, (1280, 720))
+    for size in ((640, 360), (960, 540), (1920, 1080)):
+        other = plan_scales(config, random_model.options, size)
+        assert [p.grid for p in other] == [p.grid for p in full]
+        factor = size[0] / 1280
+        for a, b in zip(other, full):
+            # Each window is rounded to whole pixels at both sizes.
+            np.testing.assert_allclose(a.boxes, b.boxes * factor, atol=2 * max(factor, 1))
+
+
+def test_default_windows_lie_in_their_band_and_reach(random_model):
+    search = SearchConfig()
+    for width, height in ((1280, 720), (960, 540), (1000, 750)):
+        plans = plan_scales(DetectorConfig(search=search), random_model.options, (width, height))
+        assert len(plans) == len(search.windows)
+        for plan, window in zip(plans, search.windows):
+            side = window.size * height
+            boxes = plan.boxes.astype(float)
+            # Square windows of the configured side (to the pixel).
+            assert np.abs(boxes[:, 2] - boxes[:, 0] - side).max() <= 1
+            assert np.abs(boxes[:, 3] - boxes[:, 1] - side).max() <= 1
+            tops = (boxes[:, 1] - search.horizon * height) / side
+            slack = (search.margin * height + 1) / side
+            assert tops.min() >= search.band[0] - slack
+            assert tops.max() <= search.band[1] + slack
+            centres = (boxes[:, 0] + boxes[:, 2]) / 2 - width / 2
+            assert np.abs(centres).max() <= search.reach * side + 2
+            # The step follows the overlap (rounded to whole 8-pixel cells of the 64-px window).
+            step = np.diff(np.unique(boxes[:, 0]))
+            assert np.abs(step - (1 - window.overlap) * side).max() <= side / 8 + 1
+
+
+def test_a_lower_horizon_moves_every_band_down(random_model):
+    high = plan_scales(DetectorConfig(), random_model.options, (1280, 720))
+    low = plan_scales(DetectorConfig(search=SearchConfig(horizon=0.65)), random_model.options,
+                      (1280, 720))
+    for a, b in zip(high, low):
+        assert b.roi[1] - a.roi[1] == pytest.approx(0.07 * 720, abs=1)
 
 
 def test_heatmap_and_boxes_from_known_hits(random_model):
     config = DetectorConfig(heat=HeatConfig(threshold=1, weighting="count", peak_fraction=0),
                             boxes=BoxConfig(min_size=1, horizon_y=0, width_scale=1,
-                                            height_scale=1, center_dy=0))
+                                            height_scale=1, center_dy=0, refine=()))
     detector = Detector(random_model, config, threads=1)
     boxes = np.array([[10, 10, 50, 50], [20, 20, 60, 60], [200, 200, 240, 240]], np.int32)
     hits = Hits(boxes, np.ones(3, np.float32), np.zeros(3, np.int64), 3)
@@ -189,7 +224,7 @@ def _boxes_from_hits(model, windows, split, min_size=48):
     config = DetectorConfig(heat=HeatConfig(threshold=0.5, weighting="count", peak_fraction=0,
                                             split=split, split_min_size=min_size),
                             boxes=BoxConfig(min_size=10, horizon_y=0, max_aspect=5, width_scale=1,
-                                            height_scale=1, center_dy=0))
+                                            height_scale=1, center_dy=0, refine=()))
     detector = Detector(model, config, threads=1)
     boxes = np.array(windows, np.int32)
     hits = Hits(boxes, np.ones(len(boxes), np.float32), np.zeros(len(boxes), np.int64), len(boxes))
@@ -222,7 +257,8 @@ def test_small_parts_are_not_split_off(random_model):
 
 
 def test_shape_correction_scales_about_the_centre(random_model):
-    config = DetectorConfig(boxes=BoxConfig(width_scale=1.5, height_scale=0.5, center_dy=0.25))
+    config = DetectorConfig(boxes=BoxConfig(width_scale=1.5, height_scale=0.5, center_dy=0.25,
+                                            refine=()))
     detector = Detector(random_model, config, threads=1)
     boxes = np.array([[100, 100, 200, 200], [0, 0, 40, 40]], np.int32)
     out = detector.box_finder.reshape_boxes(boxes, (1280, 720))
@@ -246,8 +282,12 @@ def test_two_thread_tasks_cut_the_largest_scale_into_whole_tiles(random_model):
     used = (plan.grid[0] - 1) * plan.step_cells * 8 + 64
     assert rows[0][0] == 0 and rows[0][1] == rows[1][0] and rows[1][1] == used
     assert rows[0][1] % detector.scorer._row_alignment(plan) == 0
-    # Its windows are scored last, after its rows.
-    assert tasks[-1].kind == "windows" and tasks[-1].index == largest
+    # A cut scale's windows are scored after all of its rows.
+    for position, task in enumerate(tasks):
+        if task.kind == "windows":
+            assert all(other.kind != "rows" or other.index != task.index
+                       for other in tasks[position + 1:])
+    assert any(task.kind == "windows" and task.index == largest for task in tasks)
 
 
 def test_a_failing_task_fails_the_frame_without_hanging(random_model, monkeypatch):

@@ -10,7 +10,7 @@ import pytest
 from fastdet.detector.detections import Detections
 from fastdet.detector.geometry import cover_matrix, iou_matrix
 from fastdet.errors import InputError
-from fastdet.evaluation.annotations import load_annotations
+from fastdet.evaluation.annotations import load_annotations, load_splits, select_split
 from fastdet.evaluation.matching import (
     DIFFICULT_COVER,
     FALSE_POSITIVE,
@@ -237,6 +237,8 @@ def test_evaluate_pools_images_by_score():
     assert report.precision == pytest.approx(2 / 4)
     assert report.recall == pytest.approx(2 / 3)
     assert report.mean_iou == pytest.approx((1.0 + 0.8) / 2)
+    # numpy's linear interpolation between the two: 0.8 + 0.1 * (1.0 - 0.8).
+    assert report.iou_p10 == pytest.approx(0.82)
     # Ranked (ignored dropped): 0.9 TP, 0.7 FP, 0.6 TP, 0.4 FP.
     # Precision envelope at the two recall steps: 1 and 2/3.
     assert report.ap == pytest.approx(1 / 3 * 1.0 + 1 / 3 * 2 / 3)
@@ -257,7 +259,7 @@ def test_evaluate_without_predictions():
     assert report.precision == 1.0  # no predictions: no wrong claims
     assert report.recall == 0.0
     assert report.ap == 0.0
-    assert report.mean_iou == 0.0
+    assert report.mean_iou == report.iou_p10 == 0.0
 
 
 def test_evaluate_without_ground_truth():
@@ -347,13 +349,36 @@ def write(tmp_path, content):
 
 def test_load_annotations_normalises(tmp_path):
     path = write(tmp_path, {"format": "description", "images": {
-        "a.jpg": [{"box": [1, 2, 3, 4], "label": "car", "difficult": True},
+        "a.jpg": [{"box": [1, 2, 3, 4], "label": "car", "difficult": True, "id": 7},
                   {"box": [0, 0, 5.5, 5]}],
         "b.jpg": []}})
     assert load_annotations(path) == {
-        "a.jpg": [{"box": [1.0, 2.0, 3.0, 4.0], "label": "car", "difficult": True},
-                  {"box": [0.0, 0.0, 5.5, 5.0], "label": "car", "difficult": False}],
+        "a.jpg": [{"box": [1.0, 2.0, 3.0, 4.0], "label": "car", "difficult": True, "id": 7},
+                  {"box": [0.0, 0.0, 5.5, 5.0], "label": "car", "difficult": False, "id": None}],
         "b.jpg": []}
+
+
+def test_splits_select_their_images(tmp_path):
+    path = write(tmp_path, {"images": {"frame1": [], "frame2": [], "frame3": []},
+                            "frames": {"development": ["frame1"], "held_out": ["frame3"]}})
+    annotations, splits = load_annotations(path), load_splits(path)
+    assert splits == {"development": ["frame1"], "held_out": ["frame3"]}
+    assert select_split(annotations, splits, "held_out") == {"frame3": []}
+    assert select_split(annotations, splits, None) is annotations
+    with pytest.raises(InputError, match="no split 'test'.*development, held_out"):
+        select_split(annotations, splits, "test")
+    assert load_splits(write(tmp_path, {"images": {}})) == {}
+
+
+@pytest.mark.parametrize("frames, message", [
+    ([], "must map split names"),
+    ({"development": "frame1"}, "must be a list of image names"),
+    ({"development": ["frame9"]}, "no annotations, e.g. 'frame9'"),
+])
+def test_split_errors(tmp_path, frames, message):
+    path = write(tmp_path, {"images": {"frame1": []}, "frames": frames})
+    with pytest.raises(InputError, match=message):
+        load_splits(path)
 
 
 def test_load_annotations_missing_file(tmp_path):
@@ -378,6 +403,8 @@ def test_load_annotations_not_json(tmp_path):
     ({"images": {"a.jpg": [{"box": [5, 0, 5, 1]}]}}, "x2 > x1"),
     ({"images": {"a.jpg": [{"box": [0, 0, 1, 1], "difficult": "yes"}]}}, "difficult must be"),
     ({"images": {"a.jpg": [{"box": [0, 0, 1, 1], "label": 3}]}}, "label must be"),
+    ({"images": {"a.jpg": [{"box": [0, 0, 1, 1], "id": "seven"}]}}, "id must be an integer"),
+    ({"images": {"a.jpg": [{"box": [0, 0, 1, 1], "id": True}]}}, "id must be an integer"),
 ])
 def test_load_annotations_structure_errors(tmp_path, content, message):
     with pytest.raises(InputError, match=message) as info:

@@ -253,7 +253,7 @@ ROWS = [
         names=lambda i, o: i / "wrong.json", problem="images"),
     Row("eval", "image folder missing",
         lambda i, o: ["eval", s(i.annotations), s(i / "missing")],
-        names=lambda i, o: i / "missing" / "image.jpg", problem="not found"),
+        names=lambda i, o: i / "missing", problem="no such folder"),
     Row("eval", "annotated image truncated",
         lambda i, o: ["eval", s(i / "damaged_image.json"), s(i.dir)],
         names=lambda i, o: i / "truncated.jpg", problem="as an image|damaged"),

@@ -106,3 +106,61 @@ def test_tune_finds_a_perfect_setting_and_writes_toml(tmp_path, generous_model):
     parsed = Config.from_dict(tomllib.loads(text))
     assert parsed.search.decision_threshold == 50.0
     assert parsed.boxes.width_scale == best.width_scale
+    assert parsed.heat.split_min_size == best.split_min_size
+    # The refinement fitted to the best setting competes in the same ranking;
+    # when it leads, its weights go into the TOML.
+    assert any(r.refine for r in results) or all(r.refine_samples == 0 for r in results)
+    if best.refine:
+        assert parsed.boxes.refine == best.refine
+
+
+def test_each_source_keeps_its_own_annotations(tmp_path, generous_model):
+    """Two sources whose frames share a name: each is scored against its own truth."""
+    folders = [tmp_path / "one", tmp_path / "two"]
+    for folder in folders:
+        folder.mkdir()
+    image = np.zeros((128, 256, 3), np.uint8)
+    image[32:96, 64:128] = 250
+    for folder in folders:
+        cv2.imwrite(str(folder / "a.png"), image)
+    block = [{"box": [64.0, 32.0, 128.0, 96.0], "label": "car", "difficult": False, "id": 1}]
+    # In the second source the block is not a vehicle: a hit there is a false positive.
+    sources = [(folders[0] / "a.png", {"a.png": block}), (folders[1] / "a.png", {"a.png": []})]
+    results = tune(generous_model, sources, None, small_config(),
+                   grid={"decision_threshold": (50.0,), "heat_threshold": (0.5,),
+                         "weighting": ("count",), "peak_fraction": (0.0,)})
+    first = [r for r in results if not r.refine][0]
+    assert (first.recall, first.precision) == (1.0, 0.5)
+    detector = Detector(generous_model, small_config(), threads=1)
+    # Mining both saves exactly what mining the second alone does: the block is a
+    # vehicle in the first.
+    both = mine(detector, sources, None, tmp_path / "both")
+    second = mine(detector, sources[1:], None, tmp_path / "second")
+    assert both.frames == 2 and len(both.saved) == len(second.saved) > 0
+
+
+def test_mine_cli_takes_only_the_split_asked_for(tmp_path, capsys, generous_model):
+    model_path = tmp_path / "m.npz"
+    generous_model.save(model_path)
+    image = np.zeros((128, 256, 3), np.uint8)
+    image[32:96, 64:128] = 250
+    for name in ("dev.png", "held.png"):
+        cv2.imwrite(str(tmp_path / name), image)
+    annotations = tmp_path / "a.json"
+    annotations.write_text(json.dumps({"images": {"dev.png": [], "held.png": []},
+                                       "frames": {"development": ["dev.png"],
+                                                  "held_out": ["held.png"]}}))
+    config = tmp_path / "c.toml"
+    config.write_text("[search]\ndecision_threshold = 0.0\nreference_size = [256, 128]\n"
+                      "[[search.scales]]\nwindow = 64\noverlap = 0.5\nx = [0, 256]\ny = [0, 128]\n")
+    out = tmp_path / "mined"
+    assert main(["mine", str(tmp_path / "dev.png"), str(tmp_path / "held.png"), "--annotations",
+                 str(annotations), "--split", "development", "--out", str(out), "--model",
+                 str(model_path), "--config", str(config)]) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names and all(name.startswith("dev_") for name in names)
+    assert "1 annotated frames" in capsys.readouterr().out
+    # One annotation file per source, or one for all: anything else is refused.
+    assert main(["mine", str(tmp_path / "dev.png"), "--annotations", str(annotations),
+                 str(annotations), "--out", str(out), "--model", str(model_path)]) == EXIT_ERROR
+    assert "one per source" in capsys.readouterr().err

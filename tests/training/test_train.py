@@ -105,3 +105,86 @@ def test_train_reports_its_augmentation(tmp_path, jitter):
     else:
         assert report["jitter_augmentation"] is None
     assert report["leak_free_split"]["accuracy"] == 1.0
+
+
+def test_photometric_copies_keep_geometry_and_change_the_look():
+    from fastdet.training.augment import Photometric
+
+    crops = np.stack([square_crop()] * 50)
+    plain = jitter_crops(crops, seed=5)
+    looked = jitter_crops(crops, seed=5, photometric=Photometric())
+    # The geometric draws are the same with and without the photometric ones.
+    np.testing.assert_array_equal(jitter_crops(crops, seed=5), plain)
+    assert looked.shape == crops.shape and looked.dtype == np.uint8
+    np.testing.assert_array_equal(jitter_crops(crops, seed=5, photometric=Photometric()), looked)
+    changed = [not np.array_equal(a, b) for a, b in zip(plain, looked)]
+    assert sum(changed) > len(changed) // 2  # each effect at probability 0.5: most copies change
+    # Brightness, contrast, colour and blur move values, never the square's centre much.
+    for crop in looked:
+        grey = crop.astype(float).mean(axis=2)
+        ys, xs = np.nonzero(grey > grey.mean())
+        assert abs(xs.mean() - 32) <= JITTER_SHIFT + 2 and abs(ys.mean() - 32) <= JITTER_SHIFT + 2
+
+
+@pytest.mark.parametrize("effect, settings", [
+    ("brightness", {"brightness": (0.5, 0.5)}),
+    ("contrast", {"contrast": (0.5, 0.5)}),
+    ("temperature", {"temperature": 0.2}),
+    ("blur", {"blur": (1.5, 1.5)}),
+    ("resolution", {"resolution": (16, 16)}),
+    ("jpeg", {"jpeg": (10, 10)}),
+])
+def test_each_photometric_effect(effect, settings):
+    from fastdet.training.augment import Photometric, photometric_crop
+
+    rng = np.random.default_rng(0)
+    crop = rng.integers(60, 200, (64, 64, 3), dtype=np.uint8)
+    crop[16:48, 16:48] = (40, 120, 220)
+    # Only this effect, always applied; the others never.
+    neutral = dict.fromkeys(("brightness", "contrast", "temperature", "blur", "resolution",
+                             "jpeg"))
+    out = photometric_crop(crop, Photometric(**{**neutral, **settings}, probability=1.0),
+                           np.random.default_rng(1))
+    if effect == "jpeg":
+        assert np.abs(out.astype(int) - crop).mean() > 1
+        return
+    before, after = crop.astype(float), out.astype(float)
+    if effect == "brightness":
+        np.testing.assert_allclose(after, np.round(before * 0.5), atol=1)
+    elif effect == "contrast":
+        assert after.std() == pytest.approx(before.std() * 0.5, rel=0.02)
+        assert after.mean() == pytest.approx(before.mean(), abs=1)
+    elif effect == "temperature":
+        # Blue and red move in opposite directions, green stays.
+        np.testing.assert_array_equal(out[..., 1], crop[..., 1])
+        assert np.sign(after[..., 0].mean() - before[..., 0].mean()) == -np.sign(
+            after[..., 2].mean() - before[..., 2].mean()) != 0
+    else:  # blur and resolution smooth: less high-frequency energy
+        def roughness(image):
+            return np.abs(np.diff(image, axis=1)).mean()
+        assert roughness(after) < 0.7 * roughness(before)
+
+
+def test_source_of_groups():
+    from fastdet.training.dataset import source_of
+
+    assert [source_of(g) for g in ("vehicles/GTI_Far", "non-vehicles/GTI", "vehicles/KITTI_extracted",
+                                    "non-vehicles/Extras", "extra:mined", "extra:mined/sub")] == [
+        "GTI", "GTI", "KITTI", "Extras", "extra:mined", "extra:mined"]
+
+
+def test_source_holdout_trains_without_the_source_it_scores():
+    from fastdet.training.train import source_holdout
+
+    # Source "b" is separable only by a feature the others never vary: a
+    # model that had seen "b" would score it perfectly.
+    rng = np.random.default_rng(0)
+    labels = np.tile([0, 1], 30).astype(np.int8)
+    sources = np.repeat(["a", "b", "extra:x"], 20)
+    features = np.c_[np.where(sources == "b", 0.0, labels * 4.0) + rng.normal(0, 0.2, 60),
+                     np.where(sources == "b", labels * 4.0, 0.0) + rng.normal(0, 0.2, 60)]
+    report = source_holdout(features, labels, sources, [], C=1.0)
+    assert set(report) == {"a", "b"}          # added negatives are never held out
+    assert report["a"]["accuracy"] == 1.0
+    assert report["b"]["accuracy"] < 0.8
+    assert report["b"]["test_crops"] == 20 and report["b"]["vehicles"] == 10

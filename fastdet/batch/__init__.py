@@ -1,0 +1,112 @@
+"""Many videos on Dask distributed: ``fastdet batch`` and :func:`fastdet.batch`.
+
+The package itself is callable: ``fastdet.batch(inputs, out_dir)`` calls
+:func:`batch` whether ``fastdet.batch`` names this package (once it is
+imported) or not yet (``fastdet`` imports it on first use, so that importing
+``fastdet`` does not import Dask).
+
+Modules, from the task up: :mod:`.job` (one video or segment through the
+video layer), :mod:`.state` and :mod:`.boundary` (is a segment boundary
+exact, how ids continue), :mod:`.merge` (segments joined), :mod:`.worker`
+(the worker plugin and tasks), :mod:`.segments`, :mod:`.inputs`,
+:mod:`.outputs`, :mod:`.settings`, :mod:`.manifest`, :mod:`.cluster`,
+:mod:`.runner` (the client's loop), :mod:`.progress` and :mod:`.report`.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import types
+from pathlib import Path
+
+from .cluster import batch_client
+from .inputs import find_videos
+from .report import write_report
+from .runner import BatchRun
+from .settings import make_settings
+
+__all__ = ["batch", "run_batch"]
+
+
+def run_batch(inputs, out_dir, client=None, *, scheduler=None, scheduler_file=None, workers=None,
+              threads=1, segment=None, force=False, warmup=None, progress=False, **run_options):
+    """Run a batch and return its :class:`~fastdet.batch.runner.BatchRun` (what the CLI reports).
+
+    See :func:`batch` for the parameters.  The run's ``wall`` attribute holds
+    its duration in seconds, cluster start included.
+    """
+    start = time.perf_counter()
+    if isinstance(inputs, (str, Path)):
+        inputs = [inputs]
+    settings = make_settings(threads=threads, **run_options)
+    out_dir = Path(out_dir)
+    videos = find_videos(inputs, exclude=out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with batch_client(out_dir, client, scheduler, scheduler_file, workers, threads) as dask:
+        run = BatchRun(dask, settings, out_dir, force=force, segment=segment, warmup=warmup)
+        try:
+            run.run(videos, progress=progress)
+        finally:
+            write_report(out_dir, [run.manifest.records[k] for k in sorted(run.manifest.records)])
+    run.wall = time.perf_counter() - start
+    return run
+
+
+def batch(inputs, out_dir, client=None, **run_options):
+    """Detect and track vehicles in many videos on Dask; return their manifest records.
+
+    Parameters
+    ----------
+    inputs : str, Path or list of them
+        Videos, folders (searched recursively) and text files listing paths.
+    out_dir : str or Path
+        Outputs mirror each input's relative path here, beside
+        ``manifest.jsonl`` and ``index.html``.
+    client : distributed.Client, optional
+        Run on this client's cluster; by default a local cluster sized to the
+        machine is started and closed.
+    **run_options
+        ``model``, ``config``, ``every``, ``track``, ``video`` (write the
+        annotated videos, default True), ``detections`` (default True),
+        ``format`` ('jsonl', 'csv', 'mot'), ``threads`` (detector threads per
+        task, default 1), ``workers`` (local cluster size), ``scheduler`` /
+        ``scheduler_file`` (a running cluster instead of ``client``),
+        ``segment`` (frames ``"500"`` or seconds ``"30s"`` per segment of a
+        long video), ``warmup`` (frames before each segment; default from the
+        ``[track]`` settings), ``force`` (redo videos already done),
+        ``progress`` (progress bars on a terminal).
+
+    Returns
+    -------
+    list of dict
+        The manifest record of every video, in input order: ``status``
+        (``"done"`` or ``"failed"`` with a ``reason``), ``frames``,
+        ``vehicles``, ``fps``, ``outputs`` (relative to ``out_dir``), hashes.
+
+    Raises
+    ------
+    FastdetError
+        For bad inputs, model, configuration or cluster, before any video
+        is processed.  A video that cannot be processed does not raise: its
+        record says ``failed``.
+    KeyboardInterrupt
+        After cancelling the remaining work; a second call continues.
+
+    Examples
+    --------
+    >>> records = fastdet.batch("footage/", "out/")                 # doctest: +SKIP
+    >>> [r["status"] for r in records]                              # doctest: +SKIP
+    ['done', 'done', 'failed']
+    """
+    return run_batch(inputs, out_dir, client, **run_options).records
+
+
+class _CallableModule(types.ModuleType):
+    """This package's type: calling it calls :func:`batch`."""
+
+    def __call__(self, inputs, out_dir, client=None, **run_options):
+        return batch(inputs, out_dir, client, **run_options)
+
+
+sys.modules[__name__].__class__ = _CallableModule

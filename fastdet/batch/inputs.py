@@ -1,0 +1,147 @@
+"""What a batch processes: videos, folders of videos, lists of paths; where each one's outputs go.
+
+Every video gets a *relative path* that its outputs mirror under the output
+folder: a video named directly keeps its file name, a video found in a folder
+its path inside that folder, and a listed video the path as the list writes it
+(relative entries are read relative to the list file's folder).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+from ..errors import InputError
+
+#: Suffixes of the files a folder search takes for videos (compared lower-case).
+VIDEO_SUFFIXES = frozenset({".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg",
+                            ".ts", ".mts", ".m2ts", ".wmv", ".flv", ".3gp"})
+#: Bytes read to tell a list of paths from a binary file (a video with another suffix).
+_TEXT_PROBE = 8192
+
+
+@dataclass(frozen=True)
+class VideoInput:
+    """One video of a batch.
+
+    Attributes
+    ----------
+    path : Path
+        The file, absolute.
+    relative : str
+        POSIX path its outputs mirror under the output folder (``day1/clip.mp4``).
+    """
+
+    path: Path
+    relative: str
+
+    @property
+    def key(self):
+        """The relative path without its suffix: every output of this video is named after it."""
+        return str(PurePosixPath(self.relative).with_suffix(""))
+
+
+def is_video_name(path):
+    """Whether ``path``'s suffix is one a folder search takes for a video."""
+    return Path(path).suffix.lower() in VIDEO_SUFFIXES
+
+
+def find_videos(inputs, exclude=None):
+    """The videos that ``inputs`` name, each once, in a stable order.
+
+    Parameters
+    ----------
+    inputs : iterable of str or Path
+        Video files, folders (searched recursively; hidden files and folders
+        are left out) and text files listing one path per line (blank lines
+        and lines starting with ``#`` are ignored).
+    exclude : Path, optional
+        A folder whose content is never taken (the output folder, when it
+        lies inside an input folder).
+
+    Returns
+    -------
+    list of VideoInput
+
+    Raises
+    ------
+    InputError
+        When an input does not exist, a list names a missing path, nothing
+        is found, or two videos would write the same outputs.
+    """
+    exclude = None if exclude is None else Path(exclude).resolve()
+    found = []
+    for item in inputs:
+        found += _expand(Path(item), exclude, listed_by=None)
+    if not found:
+        raise InputError("no videos found in " + ", ".join(str(i) for i in inputs))
+    unique, seen_paths, owners = [], set(), {}
+    for video in found:
+        if video.path in seen_paths:
+            continue
+        seen_paths.add(video.path)
+        other = owners.setdefault(video.key, video)
+        if other is not video:
+            raise InputError(f"{other.path} and {video.path} would write the same outputs "
+                             f"({video.key}.*): rename one or run them in separate batches")
+        unique.append(video)
+    return unique
+
+
+def _expand(path, exclude, listed_by):
+    where = f" (listed in {listed_by})" if listed_by else ""
+    if not path.exists():
+        raise InputError(f"input not found: {path}{where}")
+    resolved = path.resolve()
+    if path.is_dir():
+        return [VideoInput(file, file.relative_to(resolved).as_posix())
+                for file in _videos_in(resolved, exclude)]
+    if is_video_name(path) or listed_by is not None:
+        # A listed file is taken for a video whatever its suffix: the list says so.
+        return [VideoInput(resolved, path.name)]
+    return _read_list(path, exclude)
+
+
+def _listed_name(path):
+    # A relative entry keeps its folders, unless it climbs out of the list's folder.
+    parts = PurePosixPath(path.as_posix()).parts
+    if ".." in parts:
+        return path.name
+    return PurePosixPath(*[p for p in parts if p != "."]).as_posix()
+
+
+def _videos_in(folder, exclude):
+    videos = []
+    for root, dirs, files in os.walk(folder):
+        root = Path(root)
+        dirs[:] = sorted(d for d in dirs if not d.startswith(".")
+                         and (exclude is None or (root / d).resolve() != exclude))
+        videos += [root / name for name in sorted(files)
+                   if not name.startswith(".") and is_video_name(name)]
+    return videos
+
+
+def _read_list(path, exclude):
+    with open(path, "rb") as handle:
+        head = handle.read(_TEXT_PROBE)
+    try:
+        if b"\0" in head:
+            raise UnicodeDecodeError("utf-8", head, 0, 1, "binary")
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{path} is neither a video (by its suffix: "
+                         f"{', '.join(sorted(VIDEO_SUFFIXES))}) nor a text file listing "
+                         "videos") from None
+    entries = []
+    for line in text.splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        written = Path(line).expanduser()
+        entry = written if written.is_absolute() else path.parent / written
+        expanded = _expand(entry, exclude, listed_by=path)
+        if not written.is_absolute() and not entry.is_dir():
+            expanded = [VideoInput(v.path, _listed_name(written)) for v in expanded]
+        entries += expanded
+    return entries

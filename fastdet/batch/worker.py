@@ -1,0 +1,175 @@
+"""What runs on the workers: the set-up plugin and the tasks.
+
+:class:`BatchSetup` is registered once per batch (named after the model's
+and the configuration's hashes) and set up once per worker process: it
+limits the codec threads, loads the model from the bytes it carries and runs
+the pipeline on a noise frame, which loads the compiled kernels from Numba's
+cache (or compiles them once, on a machine whose cache is empty).  Tasks then only
+carry paths and the plugin's name; each task thread builds its
+:class:`~fastdet.Detector` on the shared model once.
+
+A task turns the errors a bad video causes (:class:`~fastdet.FastdetError`,
+``OSError``) into a ``failed`` result with a one-line reason, so they are
+not retried; anything else propagates, and Dask retries the task.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from distributed import get_worker
+from distributed.diagnostics.plugin import WorkerPlugin
+
+from ..detector.detector import Detector
+from ..detector.model import load_model
+from ..errors import FastdetError
+from .boundary import IdMap
+from .job import process_one, render_one, warm_up
+from .merge import concatenate_videos, merge_detections
+from .outputs import OutputPaths
+
+#: Size of the synthetic frame the set-up detects on (noise makes many windows
+#: hits, so heat and labelling run as well as scoring).
+WARMUP_FRAME = (720, 1280, 3)
+
+
+class BatchSetup(WorkerPlugin):
+    """Per-worker set-up of a batch: thread counts, model, compiled kernels.
+
+    Parameters
+    ----------
+    settings : fastdet.batch.settings.BatchSettings
+    """
+
+    idempotent = True
+
+    def __init__(self, settings):
+        self.settings = settings
+        self.name = settings.name
+        self.model = None
+        self.setup_seconds = None
+        self._local = threading.local()
+
+    def __getstate__(self):
+        return {"settings": self.settings, "name": self.name}
+
+    def __setstate__(self, state):
+        self.__init__(state["settings"])
+
+    async def setup(self, worker):
+        # Off the worker's event loop: compiling kernels may take half a minute.
+        await asyncio.get_running_loop().run_in_executor(None, self.prepare)
+
+    def prepare(self):
+        """Load the model and the kernels in this process (idempotent)."""
+        if self.model is not None:
+            return
+        start = time.perf_counter()
+        # OpenCV's FFmpeg decoder would otherwise start a thread per core in every worker.
+        os.environ.setdefault("OPENCV_FFMPEG_THREADS", str(self.settings.threads))
+        with tempfile.TemporaryDirectory(prefix="fastdet-model-") as folder:
+            path = Path(folder) / "model.npz"
+            path.write_bytes(self.settings.model_bytes)
+            self.model = load_model(path)
+        frame = np.random.default_rng(0).integers(0, 256, WARMUP_FRAME, dtype=np.uint8)
+        warm_up(self.detector(), self.settings.track_config, frame)
+        self.setup_seconds = time.perf_counter() - start
+
+    def detector(self):
+        """This thread's detector on the shared model (Numba's thread count is per thread)."""
+        detector = getattr(self._local, "detector", None)
+        if detector is None:
+            detector = self._local.detector = Detector(
+                self.model, self.settings.detector_config, threads=self.settings.threads)
+        return detector
+
+
+def _setup(name):
+    worker = get_worker()
+    plugin = worker.plugins.get(name)
+    if plugin is None:
+        raise RuntimeError(f"worker {worker.address} has no plugin {name}")
+    plugin.prepare()
+    return worker, plugin
+
+
+def _reporter(worker, topic, key):
+    if topic is None:
+        return None
+    return lambda frames: worker.log_event(topic, {"key": key, "frames": int(frames)})
+
+
+def _failed(exc):
+    return {"status": "failed", "reason": " ".join(str(exc).split()) or type(exc).__name__}
+
+
+def video_task(name, job):
+    """Process one video or one segment on a worker (see :func:`fastdet.batch.job.process_one`).
+
+    ``job`` holds ``input``, ``outputs`` (a dict of paths), ``frame_range``,
+    ``warmup``, ``format``, ``track_order``, ``topic`` and ``key``.
+    """
+    worker, plugin = _setup(name)
+    outputs = OutputPaths.from_dict(job["outputs"])
+    try:
+        result = process_one(job["input"], outputs, plugin.settings, job.get("frame_range"),
+                             job.get("warmup", 0), detector=plugin.detector(),
+                             detections_format=job.get("format"),
+                             track_order=job.get("track_order"),
+                             callback=_reporter(worker, job.get("topic"), job.get("key")))
+        result["status"] = "done"
+    except (FastdetError, OSError) as exc:
+        result = _failed(exc)
+    result.update(worker=worker.address, setup_seconds=plugin.setup_seconds)
+    return result
+
+
+def render_task(job):
+    """Draw a segment's boxes into its part of the annotated video (``job``: see the runner)."""
+    started = time.time()
+    outputs = OutputPaths.from_dict({"video": job["video"], "detections": None,
+                                     "thumbnail": job["thumbnail"]})
+    try:
+        frames = render_one(job["input"], job["frame_range"], Path(job["detections"]),
+                            IdMap.from_dict(job["ids"]), outputs)
+        result = {"status": "done", "frames": frames}
+    except (FastdetError, OSError) as exc:
+        result = _failed(exc)
+    result.update(started=started, finished=time.time(), worker=get_worker().address)
+    return result
+
+
+def merge_task(job):
+    """Join a long video's segments into its outputs (see :mod:`fastdet.batch.merge`).
+
+    ``job`` holds ``parts`` (per segment: ``video``, ``detections`` and its
+    ``ids`` map as a dict), ``outputs`` and ``format``.
+    """
+    started = time.time()
+    try:
+        parts, outputs = job["parts"], job["outputs"]
+        if outputs.get("detections"):
+            merge_detections([Path(p["detections"]) for p in parts],
+                             [IdMap.from_dict(p["ids"]) for p in parts],
+                             Path(outputs["detections"]), job["format"])
+        if outputs.get("video"):
+            concatenate_videos([Path(p["video"]) for p in parts], Path(outputs["video"]))
+        result = {"status": "done"}
+    except (FastdetError, OSError) as exc:
+        result = _failed(exc)
+    result.update(started=started, finished=time.time(), worker=get_worker().address)
+    return result
+
+
+def worker_report(out_dir, probe_name):
+    """What the client checks on every worker: fastdet's version and the shared folder."""
+    from .._version import __version__
+
+    probe = Path(out_dir) / probe_name
+    return {"version": __version__, "sees_out_dir": probe.is_file()}

@@ -1,0 +1,128 @@
+"""What a batch takes for its videos, and where their outputs go."""
+
+from pathlib import Path
+
+import pytest
+
+from fastdet.batch.inputs import find_videos
+from fastdet.batch.outputs import OutputPaths, output_paths, remove_leftovers
+from fastdet.batch.settings import make_settings
+from fastdet.errors import InputError
+
+
+def touch(path):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(b"not decoded here")
+    return path
+
+
+@pytest.fixture
+def footage(tmp_path):
+    root = tmp_path / "footage"
+    for name in ("b.mp4", "a.MOV", "day1/c.mkv", "day1/deeper/d.avi", "notes.txt", ".hidden.mp4",
+                 ".cache/e.mp4", "day1/f.jpg"):
+        touch(root / name)
+    return root
+
+
+def test_a_folder_is_searched_recursively_for_videos(footage):
+    videos = find_videos([footage])
+    assert [v.relative for v in videos] == ["a.MOV", "b.mp4", "day1/c.mkv", "day1/deeper/d.avi"]
+    assert all(v.path.is_absolute() and v.path.is_file() for v in videos)
+    assert videos[2].key == "day1/c"
+
+
+def test_a_video_keeps_its_name_and_is_taken_once(footage):
+    videos = find_videos([footage / "day1" / "c.mkv", footage, footage / "b.mp4"])
+    assert [v.relative for v in videos][:2] == ["c.mkv", "a.MOV"]
+    assert len(videos) == 4
+
+
+def test_the_output_folder_is_not_searched(footage):
+    touch(footage / "out" / "b.mp4")
+    assert "out/b.mp4" not in [v.relative for v in find_videos([footage], exclude=footage / "out")]
+    assert "out/b.mp4" in [v.relative for v in find_videos([footage])]
+
+
+def test_a_list_file_names_videos_and_folders(footage, tmp_path):
+    listing = tmp_path / "videos.txt"
+    listing.write_text(f"# dashcam\n\nfootage/b.mp4\n  footage/day1/deeper/d.avi  \n"
+                       f"{footage / 'a.MOV'}\nfootage/day1\n../{tmp_path.name}/footage/b.mp4\n")
+    videos = find_videos([listing])
+    assert [v.relative for v in videos] == ["footage/b.mp4", "footage/day1/deeper/d.avi",
+                                            "a.MOV", "c.mkv"]
+
+
+def test_a_listed_file_is_a_video_whatever_its_suffix(tmp_path):
+    touch(tmp_path / "clip.dashcam")
+    (tmp_path / "list.txt").write_text("clip.dashcam\n")
+    assert [v.relative for v in find_videos([tmp_path / "list.txt"])] == ["clip.dashcam"]
+
+
+@pytest.mark.parametrize("content, message", [
+    ("missing.mp4\n", "input not found: .*missing.mp4 \\(listed in .*list.txt\\)"),
+    ("", "no videos found"),
+])
+def test_list_errors(tmp_path, content, message):
+    (tmp_path / "list.txt").write_text(content)
+    with pytest.raises(InputError, match=message):
+        find_videos([tmp_path / "list.txt"])
+
+
+def test_errors_name_the_problem(tmp_path, footage):
+    with pytest.raises(InputError, match="input not found"):
+        find_videos([tmp_path / "nothing"])
+    (tmp_path / "binary.dat").write_bytes(b"\xff\xfe\x00\x81")
+    with pytest.raises(InputError, match="neither a video .* nor a text file"):
+        find_videos([tmp_path / "binary.dat"])
+    touch(tmp_path / "other" / "b.mp4")
+    with pytest.raises(InputError, match="would write the same outputs"):
+        find_videos([footage, tmp_path / "other"])
+    touch(footage / "b.mkv")
+    with pytest.raises(InputError, match="would write the same outputs \\(b\\.\\*\\)"):
+        find_videos([footage])
+
+
+def test_outputs_mirror_the_relative_path(footage, tmp_path):
+    video = find_videos([footage])[2]
+    out = tmp_path / "out"
+    paths = output_paths(video, out, make_settings())
+    assert paths == OutputPaths(out / "day1/c.mp4", out / "day1/c.jsonl", out / "day1/c.jpg")
+    assert paths.relative_to(out) == {"video": "day1/c.mp4", "detections": "day1/c.jsonl",
+                                      "thumbnail": "day1/c.jpg"}
+    only = output_paths(video, out, make_settings(video=False, format="mot"))
+    assert only == OutputPaths(None, out / "day1/c.txt", None)
+
+
+def test_an_output_may_not_overwrite_its_input(footage):
+    video = find_videos([footage])[1]          # b.mp4
+    with pytest.raises(InputError, match="would overwrite the input video"):
+        output_paths(video, footage, make_settings())
+
+
+def test_leftovers_of_killed_attempts_are_removed(tmp_path):
+    paths = OutputPaths(tmp_path / "c.mp4", tmp_path / "c.jsonl", None)
+    for name in (".c.x1y2.part.mp4", ".c.abc.part.jsonl", "c.mp4", ".d.x.part.mp4"):
+        touch(tmp_path / name)
+    parts = tmp_path / ".fastdet-parts" / "day1" / "c"
+    touch(parts / "segment-0000.jsonl")
+    remove_leftovers(paths, parts)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".d.x.part.mp4", "c.mp4"]
+
+
+def test_settings_are_checked_and_hashed(tmp_path):
+    base = make_settings()
+    assert base.config_sha256 == make_settings().config_sha256
+    assert make_settings(every=5).config_sha256 != base.config_sha256
+    assert make_settings(format="csv").config_sha256 != base.config_sha256
+    assert make_settings(threads=2).config_sha256 == base.config_sha256   # same outputs
+    assert len(base.model_sha256) == 64 and base.model_bytes[:2] == b"PK"
+    with pytest.raises(InputError, match="nothing to write"):
+        make_settings(video=False, detections=False)
+    with pytest.raises(InputError, match="--every"):
+        make_settings(every=0)
+    bad = tmp_path / "model.npz"
+    bad.write_bytes(b"junk")
+    with pytest.raises(Exception, match="model"):
+        make_settings(model=bad)
+    assert Path(bad).exists()
