@@ -150,3 +150,27 @@ def check_row(row, inputs, tmp_path, capfd):
     # After the setup's end: a FIFO's reader has then read everything.
     if row.code != EXIT_ERROR and row.check is not None:
         assert row.check(inputs, out, stdout)
+
+
+# -- the table of docs/reliability.md --------------------------------------------------
+TABLE_HEADER = ("| verb | fault | exit | the error line names the file and says |",
+                "|---|---|---:|---|")
+
+
+def outcome(row):
+    """The last column of ``row``'s line in the table."""
+    if row.code == EXIT_ERROR:
+        return " or ".join(f"`{part}`" for part in row.problem.split("|")) or "(an error)"
+    if row.code == 1:
+        return "(some videos failed: each one's status and reason are in the manifest)"
+    if row.messages == "^$":
+        return "(handled)"
+    if "warning" in row.messages:
+        return "(handled; one line on stderr: `fastdet: warning: <file>: input damaged: ...`)"
+    return "(handled; stdout holds the output, messages go to stderr)"
+
+
+def markdown_table(rows):
+    """The matrix as the markdown table of ``docs/reliability.md``, one line per row."""
+    return "\n".join([*TABLE_HEADER, *(f"| {row.verb} | {row.fault} | {row.code} | "
+                                       f"{outcome(row)} |" for row in rows)])

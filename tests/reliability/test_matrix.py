@@ -32,7 +32,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from matrix_checks import Row, check_row, fifo_reader, full_disk, read_only_out, s
+from matrix_checks import (TABLE_HEADER, Row, check_row, fifo_reader, full_disk, markdown_table,
+                           read_only_out, s)
+from matrix_batch_rows import BATCH_ROWS
 from matrix_video_rows import VIDEO_ROWS, VideoInputs
 
 from fastdet.cli.app import main
@@ -226,7 +228,7 @@ ROWS = [
         problem="heat.threshold must be a finite number"),
     Row("detect", "--out-dir read-only",
         lambda i, o: ["detect", s(i.image), "--out-dir", s(o)],
-        names=lambda i, o: o / "image.jpg", problem="Read-only file system|not writable",
+        names=lambda i, o: o, problem="Read-only file system|not writable",
         guarded=lambda i, o: [o / "image.jpg"], setup=lambda i, o: read_only_out(o)),
     Row("detect", "--out-dir on a full disk",
         lambda i, o: ["detect", s(i.image), "--out-dir", s(o / "disk")],
@@ -435,7 +437,7 @@ ROWS += [
 
 
 # -- the matrix ----------------------------------------------------------------------
-ALL_ROWS = ROWS + VIDEO_ROWS
+ALL_ROWS = ROWS + VIDEO_ROWS + BATCH_ROWS
 
 
 @pytest.mark.parametrize("row", ALL_ROWS, ids=lambda row: row.id)
@@ -455,3 +457,20 @@ def test_debug_shows_the_traceback(inputs):
 def test_every_verb_that_reads_or_writes_has_rows():
     verbs = {row.verb for row in ALL_ROWS}
     assert {"detect", "eval", "train", "mine", "tune", "viz", "run"} <= verbs
+
+
+def test_the_documented_table_is_the_matrix():
+    """``docs/reliability.md`` lists every row, as run (``print_table`` below writes it)."""
+    text = (ROOT / "docs" / "reliability.md").read_text()
+    start = text.index(TABLE_HEADER[0])
+    end = text.find("\n\n", start)
+    assert text[start:end if end >= 0 else None].rstrip("\n") == markdown_table(ALL_ROWS)
+
+
+def print_table():
+    """Print the table for ``docs/reliability.md``: ``python tests/reliability/test_matrix.py``."""
+    print(markdown_table(ALL_ROWS))
+
+
+if __name__ == "__main__":
+    print_table()
