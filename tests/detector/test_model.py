@@ -169,7 +169,7 @@ def test_pickle_is_refused_without_suggesting_to_unpickle_it(tmp_path):
     path.write_bytes(pickle.dumps({"weights": [1.0, 2.0]}))
     with pytest.raises(ModelError, match="not an .npz archive") as raised:
         load_model(path)
-    assert "pickle" not in str(raised.value)
+    assert "pickle" not in str(raised.value).replace(str(path), "")
 
 
 def test_plain_npy_file(tmp_path):
