@@ -69,14 +69,15 @@ def read_only(path):
 DEVICES = {"null": (1, 3), "full": (1, 7)}
 
 
-def private_device(folder, name):
-    """A private copy of ``/dev/<name>`` (a device node in ``folder``), or ``None`` when not root.
+def private_device(folder, name, filename=None):
+    """A private copy of ``/dev/<name>`` (a device node ``folder/filename``, by default
+    ``folder/name``), or ``None`` when not root.
 
     Tests write to these, never to ``/dev`` itself: code that wrongly
     renames a file over its output would otherwise replace the machine's
     ``/dev/null`` or ``/dev/full`` for every process on it.
     """
-    path = folder / name
+    path = folder / (filename or name)
     if not is_root():
         return None
     try:

@@ -20,6 +20,7 @@ import time
 import types
 from pathlib import Path
 
+from ..files.atomic import output_folder
 from .cluster import batch_client
 from .inputs import find_videos
 from .report import write_report
@@ -42,7 +43,7 @@ def run_batch(inputs, out_dir, client=None, *, scheduler=None, scheduler_file=No
     settings = make_settings(threads=threads, **run_options)
     out_dir = Path(out_dir)
     videos = find_videos(inputs, exclude=out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    output_folder(out_dir)
     with batch_client(out_dir, client, scheduler, scheduler_file, workers, threads) as dask:
         run = BatchRun(dask, settings, out_dir, force=force, segment=segment, warmup=warmup)
         try:

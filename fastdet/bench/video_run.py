@@ -62,8 +62,19 @@ def pingpong(index, count):
     return step if step < count else period - step
 
 
-def looped_video(source, frames=LOOPED_FRAMES, folder=None):
+def looped_video(source, frames=LOOPED_FRAMES, folder=None, preset="medium"):
     """``source`` looped forward and back to ``frames`` frames, as H.264; made once, cached.
+
+    Parameters
+    ----------
+    source : str or Path
+        The clip to loop.
+    frames : int
+    folder : str or Path, optional
+        Where to keep it (default: ``bench`` beside the kernel cache).
+    preset : str
+        libx264's preset: ``medium`` (the benchmark's, about the clip's own
+        bitrate) or a faster one for tests.
 
     Returns
     -------
@@ -71,21 +82,22 @@ def looped_video(source, frames=LOOPED_FRAMES, folder=None):
     """
     import av
 
+    from ..files.atomic import atomic_path
     from ..kernels.cache import kernel_cache_dir
     from ..video.source import VideoSource
 
     folder = Path(folder) if folder else kernel_cache_dir().parent.parent / "bench"
-    path = folder / f"{Path(source).stem}_looped{frames}.mp4"
+    speed = "" if preset == "medium" else f"_{preset}"
+    path = folder / f"{Path(source).stem}_looped{frames}{speed}.mp4"
     if path.exists():
         return path
     folder.mkdir(parents=True, exist_ok=True)
     with VideoSource(source) as video:
         (matrix, colour_range), rate, (width, height) = video.colour, video.rate, video.size
         clip = [frame.to_ndarray() for frame in video.decoded_frames()]   # I420 planes
-    partial = path.with_suffix(".part.mp4")
-    with av.open(str(partial), "w") as container:
+    with atomic_path(path) as partial, av.open(str(partial), "w") as container:
         stream = container.add_stream("libx264", rate=rate,
-                                      options={"preset": "medium", "crf": "23"})
+                                      options={"preset": preset, "crf": "23"})
         stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
         # Frame threads keep one slice per picture, like camera files.
         stream.codec_context.thread_type = "FRAME"
@@ -97,7 +109,6 @@ def looped_video(source, frames=LOOPED_FRAMES, folder=None):
             frame.pts, frame.time_base = index, Fraction(1) / rate
             container.mux(stream.encode(frame))
         container.mux(stream.encode(None))
-    partial.replace(path)
     return path
 
 

@@ -7,7 +7,9 @@ Exit codes (the bad-input matrix, ``docs/reliability.md``, tests them):
   ``OSError``: bad input, an unwritable output, a full disk), reported as one
   line ``fastdet: error: ...`` on stderr; also argparse's usage errors;
 * 70: an internal error (a bug), reported as one line too;
-* 130: interrupted (Ctrl-C); 143: terminated (SIGTERM) during a run (128 + the signal).
+* 130: interrupted (Ctrl-C); 143: terminated (SIGTERM) (128 + the signal):
+  SIGTERM is handled like Ctrl-C by every verb, so a scheduler stopping
+  fastdet gets complete outputs or none, never a temporary file left over.
 
 ``--debug`` lets the exception through with its traceback instead;
 ``--verbose`` also logs what fastdet decides on the way (the kernel cache,
@@ -18,8 +20,11 @@ before or after the verb.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import signal
 import sys
+import threading
 
 from ..errors import FastdetError
 from .batch import add_batch_parser
@@ -86,8 +91,33 @@ def _start_verbose_log():
     return handler
 
 
+def _terminated(signum, _frame):
+    interrupt = KeyboardInterrupt(signal.Signals(signum).name)
+    interrupt.signum = signum
+    raise interrupt
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM raises KeyboardInterrupt (exit 143), unless someone else handles it already."""
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL):
+        yield
+        return
+    signal.signal(signal.SIGTERM, _terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def main(argv=None):
     """Entry point of the ``fastdet`` console script; returns the exit code."""
+    with _sigterm_as_interrupt():
+        return _main(argv)
+
+
+def _main(argv):
     parser = build_parser()
     args = parser.parse_args(argv)
     handler = _start_verbose_log() if args.verbose else None

@@ -24,8 +24,13 @@ def add_bench_parser(subparsers):
                        help="time the main job instead: whole `fastdet run` processes on a "
                             "1000-frame H.264 input (made once) per mode, against OpenCV's "
                             "single-thread decoding rate R of the same file")
+    bench.add_argument("--long-run", action="store_true",
+                       help="resident memory and open files of one `fastdet run` process "
+                            "sampled every 1000 frames of a 10,000-frame input (made once; "
+                            "--frames sets its length)")
     bench.add_argument("--frames", type=int, metavar="N",
-                       help="use the first N frames (default: all; 10 for --scaling)")
+                       help="use the first N frames (default: all; 10 for --scaling; "
+                            "10000 for --long-run)")
     bench.add_argument("--threads", type=int, nargs="+", metavar="T",
                        help="thread counts to time fastdet with (default: 1 and all cores)")
     bench.add_argument("--size", metavar="WxH", help="resize frames first, e.g. 1920x1080")
@@ -94,6 +99,8 @@ def cmd_bench(args):
             raise InputError(f"--{name} must be at least 1, got {value}")
     if args.video:
         return _video_benchmark(args, log)
+    if args.long_run:
+        return _long_run(args, log)
     scaling = args.scaling or bool(args.plot)
     rounds = args.rounds or 5
     video = args.input or data_dir() / "test_video.mp4"
@@ -151,6 +158,22 @@ def cmd_bench(args):
         print(format_scaling(points))
         if args.plot:
             print(f"\nplot written to {plot_scaling(points, args.plot)}")
+    return 0
+
+
+def _long_run(args, log):
+    """``fastdet bench --long-run``: memory and open files as a long run goes on."""
+    from ..bench.long_run import LONG_RUN_FRAMES, format_long_run, long_input, long_run_profile
+    from ..files.shared_data import data_dir
+
+    print(f"machine: {_machine_line()}")
+    frames = args.frames or LONG_RUN_FRAMES
+    log(f"making the {frames}-frame input (once)...")
+    video = long_input(args.input or data_dir() / "test_video.mp4", frames)
+    options = ("--threads", str(args.threads[0])) if args.threads else ()
+    samples = long_run_profile(video, options=options, log=log)
+    print(f"\n## One `fastdet run` over {frames} frames (annotated H.264 + detections)\n")
+    print(format_long_run(samples))
     return 0
 
 

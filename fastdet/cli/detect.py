@@ -6,8 +6,7 @@ import json
 import time
 from pathlib import Path
 
-from ..errors import InputError
-from ..files.atomic import output_in_folder, refuse_overwriting_inputs
+from ..files.atomic import output_folder, output_in_folder, refuse_overwriting_inputs
 from ..files.images import read_image, write_image
 from .common import add_model_options, compile_notice, make_detector
 
@@ -52,10 +51,7 @@ def _drawn_image_paths(images, out_dir):
     The names stay inside the folder whatever the inputs are called, and
     none may be an input: ``--out-dir`` the images' own folder would replace them.
     """
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"--out-dir {out_dir} is not a folder")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = output_folder(out_dir)
     targets = [output_in_folder(out_dir, Path(name).name) for name in images]
     for target in targets:
         refuse_overwriting_inputs(target, images)

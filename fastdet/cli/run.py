@@ -5,21 +5,26 @@ The input is a file, a URL (``http(s)://``, ``rtsp://``, ``udp://``,
 encoding and the detections file run pipelined
 (:func:`fastdet.video.run.process_video`).  A tqdm progress bar (frames, fps
 and, for inputs of known length, the time left) goes to stderr when it is a
-terminal; the run ends with a one-line summary on stdout.  Ctrl-C or SIGTERM
-stops the run and still completes both outputs with every frame processed so
-far (exit status 130 or 143); a second one aborts at once, leaving no output.
+terminal; the run ends with a one-line summary on stdout (on stderr when an
+output is standard output).  Ctrl-C or SIGTERM stops the run and still
+completes both outputs with every frame processed so far (exit status 130 or
+143); a second one aborts at once, leaving no output.  A damaged input is
+processed as far as the decoder can, with a warning (``--strict``: an
+error).
 """
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
-from urllib.parse import urlparse
+from urllib.parse import unquote, urlparse
 
 from ..errors import InputError
+from ..files.atomic import STDOUT, output_in_folder, refuse_overwriting_inputs
 from ..video.detection_files import FORMATS
 from ..video.sink import ENCODERS
-from .common import compile_notice, make_pipeline, track_config
+from .common import compile_notice, make_pipeline, message_stream, track_config
 
 
 def add_run_parser(subparsers):
@@ -38,8 +43,10 @@ def add_run_parser(subparsers):
                     "--out nor --detections, writes <VIDEO>_fastdet.mp4 beside the input.")
     run.add_argument("video", metavar="VIDEO")
     run.add_argument("--out", metavar="OUT.mp4",
-                     help="annotated video (same size, frame rate and timestamps as the input)")
-    run.add_argument("--detections", metavar="FILE", help="detections file")
+                     help="annotated video (same size, frame rate and timestamps as the input); "
+                          "'-', a FIFO or a device get fragmented MP4 (or the suffix's "
+                          "container), written as it goes")
+    run.add_argument("--detections", metavar="FILE", help="detections file ('-': stdout)")
     run.add_argument("--format", choices=FORMATS,
                      help="detections format (default: from FILE's suffix, else jsonl)")
     run.add_argument("--codec", choices=tuple(ENCODERS), default="h264",
@@ -70,6 +77,10 @@ def add_run_parser(subparsers):
                           "read at its own frame rate")
     run.add_argument("--timeout", type=float, default=10.0, metavar="S",
                      help="seconds a stream or camera may stay silent (default 10)")
+    run.add_argument("--strict", action="store_true",
+                     help="damaged input (cut short, undecodable data, frames decoded with "
+                          "errors) is an error; by default it is processed as far as the "
+                          "decoder can, with a warning")
     run.add_argument("--quiet", "-q", action="store_true", help="no progress bar or notices")
     run.add_argument("--debug-view", action="store_true",
                      help="draw the live heat map and per-frame timings into the output video")
@@ -108,13 +119,20 @@ class ProgressBar:
 
 
 def default_output(video):
-    """``<video>_fastdet.mp4`` beside an input file; in the current folder for streams."""
+    """``<video>_fastdet.mp4`` beside an input file; in the current folder for streams.
+
+    Built from the input's name only (:func:`~fastdet.files.atomic.output_in_folder`):
+    never a ``..`` or a separator from a URL, and a symbolic link already
+    standing under that name is refused rather than followed.
+    """
     if _is_file(video):
         video = Path(video)
-        return video.with_name(f"{video.stem}_fastdet.mp4")
-    stem = Path(urlparse(str(video)).path).stem or "stream"
+        return output_in_folder(video.parent, f"{video.stem}_fastdet.mp4")
+    # The last part of the URL's path, decoded, in plain characters, never hidden.
+    stem = re.sub(r"[^\w.-]", "_", Path(unquote(urlparse(str(video)).path)).stem).lstrip(".")
+    stem = stem or "stream"
     stem = f"camera{stem}" if stem.isdigit() else stem
-    return Path(f"{stem}_fastdet.mp4")
+    return output_in_folder(Path("."), f"{stem}_fastdet.mp4")
 
 
 def _is_file(video):
@@ -124,6 +142,16 @@ def _is_file(video):
 
 def _same_file(a, b):
     return Path(a).resolve() == Path(b).resolve()
+
+
+def _check_outputs(args, out, detections):
+    """Refuse outputs that would replace an input or each other, before any work."""
+    inputs = [args.video if _is_file(args.video) else None, args.model, args.config]
+    for output in (out, detections):
+        refuse_overwriting_inputs(output, inputs)
+    if out is not None and detections is not None and (
+            str(out) == str(detections) == STDOUT or _same_file(out, detections)):
+        raise InputError(f"cannot write {out}: --out and --detections name the same file")
 
 
 def _plan(args, track):
@@ -166,19 +194,14 @@ def cmd_run(args):
     announce = out is None and detections_path is None
     if announce:
         out = args.out = default_output(args.video)
-    for output in (out, detections_path):
-        if output is not None and _is_file(args.video) and Path(args.video).exists() \
-                and _same_file(output, args.video):
-            raise InputError(f"output {output} would overwrite the input video")
-    if out is not None and detections_path is not None and _same_file(out, detections_path):
-        raise InputError("--out and --detections name the same file")
+    _check_outputs(args, out, detections_path)
     if args.timeout <= 0:
         raise InputError(f"--timeout must be positive, got {args.timeout}")
     # Problems with the input, then with the model or config, then with the
     # outputs: each is reported before any output file exists.
     plan = _plan(args, track_config(args))
     with VideoSource(args.video, args.start, args.end, threads=plan.decoder,
-                     timeout=args.timeout) as source:
+                     timeout=args.timeout, strict=args.strict) as source:
         pipeline = _pipeline(args)
         if announce and not args.quiet:
             print(f"fastdet: no --out or --detections given; writing {out}", file=sys.stderr)
@@ -188,13 +211,16 @@ def cmd_run(args):
                 source, out, pipeline, detections=detections_path,
                 detections_format=args.format, codec=args.codec, crf=args.crf,
                 preset=args.preset, threads=args.threads, realtime=args.realtime,
-                debug_view=args.debug_view, progress=bar.update,
+                debug_view=args.debug_view, strict=args.strict, progress=bar.update,
                 log=(lambda line: print(f"fastdet: {line}", file=sys.stderr)) if verbose else None,
                 warm_up_notice=lambda: compile_notice(enabled=not args.quiet))
         finally:
             bar.close()
-    written = [p for p in (out, detections_path) if p is not None and Path(p).exists()]
-    print(stats.summary(written), flush=True)
+    written = [p for p in (out, detections_path)
+               if p is not None and (str(p) == STDOUT or Path(p).exists())]
+    if stats.damage:
+        print(f"fastdet: warning: {args.video}: {stats.damage}", file=sys.stderr)
+    print(stats.summary(written), file=message_stream(out, detections_path), flush=True)
     if stats.interrupted:
         raise RunInterrupted(stats.interrupted)
     return 0

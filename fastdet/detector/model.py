@@ -141,7 +141,16 @@ def load_model(path=None):
         return _parse(handle, str(path))
 
 
+#: How every .npz (a zip archive) starts: a local file header, or the end record of an empty one.
+_ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
+
+
 def _parse(handle, name):
+    start = handle.read(4)
+    handle.seek(0)
+    if start not in _ZIP_MAGIC:
+        # np.load would take any other bytes for a pickle and suggest unpickling them.
+        raise ModelError(f"{name} is not a readable fastdet model: not an .npz archive")
     try:
         with np.load(handle, allow_pickle=False) as archive:
             members = set(archive.files)

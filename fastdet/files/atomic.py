@@ -315,6 +315,34 @@ def check_writable(path):
         raise InputError(f"cannot write {path}: folder {folder} is not writable")
 
 
+def output_folder(folder, option="--out-dir"):
+    """Create ``folder`` (and its parents) for outputs, or raise a one-line :class:`InputError`.
+
+    Parameters
+    ----------
+    folder : str or Path
+    option : str
+        How the user named it, for the message.
+
+    Returns
+    -------
+    Path
+    """
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{option} {folder} is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        # Fail before any work, not at the first write; a nameless file (O_TMPFILE
+        # on Linux) leaves nothing behind even if the process is killed here.
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        # A parent that is a file, a read-only folder, another user's: name the folder.
+        raise InputError(f"cannot write into {option} {folder}: {_reason(exc)}") from None
+    return folder
+
+
 def output_in_folder(folder, name):
     """``folder / name`` for a name built from an input's name, kept inside ``folder``.
 

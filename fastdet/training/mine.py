@@ -26,7 +26,7 @@ from ..detector.features import WINDOW
 from ..detector.geometry import iou_matrix
 from ..errors import InputError
 from ..evaluation.annotations import frame_number
-from ..files.atomic import output_in_folder, refuse_overwriting_inputs
+from ..files.atomic import output_folder, output_in_folder, refuse_overwriting_inputs
 from ..files.images import read_image, write_image
 from ..video.source import VideoSource
 
@@ -149,10 +149,7 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
     -------
     MiningResult
     """
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"cannot write crops into {out_dir}: it is not a folder")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = output_folder(out_dir, "--out")
     frames = hits_total = 0
     saved = []
     for source, truth_of in paired_sources(sources, annotations):

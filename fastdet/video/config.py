@@ -147,10 +147,20 @@ def load_track_config(path=None):
     Returns
     -------
     TrackConfig
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the first unknown key or invalid value.
     """
     if path is None:
         return TrackConfig()
-    return TrackConfig.from_dict(read_toml(path).get("track", {}))
+    try:
+        return TrackConfig.from_dict(read_toml(path).get("track", {}))
+    except ConfigError as exc:
+        if str(path) in str(exc):
+            raise
+        raise ConfigError(f"{path}: {exc}") from None
 
 
 def _number(name, value, low):

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -68,14 +69,16 @@ class DetectionWriter(StagedFile):
         super().__init__(path)
         self.frames = 0
         self.boxes = 0
+        self._handle = None
         try:
-            # Line-buffered: a live run's detections can be followed as they come.
-            self._handle = open(self.temporary, "w", encoding="utf-8", newline="", buffering=1)
-        except OSError as exc:
+            with self.writing():
+                # Line-buffered: a live run's detections can be followed as they come.
+                self._handle = self.open("w", encoding="utf-8", newline="", buffering=1)
+                if self.format == "csv":
+                    self._handle.write(",".join(CSV_HEADER) + "\n")
+        except BaseException:
             self.discard()
-            raise InputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
-        if self.format == "csv":
-            self._handle.write(",".join(CSV_HEADER) + "\n")
+            raise
 
     def write(self, frame_index, detections):
         """Record the detections of one frame.
@@ -94,7 +97,8 @@ class DetectionWriter(StagedFile):
         if self.format == "jsonl":
             line = json.dumps({"frame": frame_index, "boxes": detections.to_list()},
                               separators=(", ", ": "))
-            self._handle.write(line + "\n")
+            with self.writing():
+                self._handle.write(line + "\n")
             return
         ids = detections.track_id
         rows = []
@@ -107,13 +111,15 @@ class DetectionWriter(StagedFile):
                 track = -1 if ids is None else int(ids[k])
                 rows.append(f"{frame_index + 1},{track},{x1},{y1},{x2 - x1},{y2 - y1},"
                             f"{score},-1,-1,-1\n")
-        self._handle.writelines(rows)
+        with self.writing():
+            self._handle.writelines(rows)
 
     def _finish(self):
         self._handle.close()
 
     def _abandon(self):
-        self._handle.close()
+        if self._handle is not None:
+            self._handle.close()
 
 
 def read_detections(path, fmt=None):
@@ -134,41 +140,37 @@ def read_detections(path, fmt=None):
     Raises
     ------
     InputError
-        When the file is missing or malformed (naming the line).
+        When the file is missing, not UTF-8 text, or malformed (naming the
+        file and the line): a box is four integer pixel coordinates with
+        ``x2 > x1`` and ``y2 > y1``, a score a finite number, a frame and a
+        track id integers.
     """
     path = Path(path)
     fmt = format_for(path, fmt)
     if not path.is_file():
         raise InputError(f"detections file not found: {path}")
-    rows = {}
-    with open(path, encoding="utf-8", newline="") as handle:
-        lines = handle.read().splitlines()
+    try:
+        with open(path, encoding="utf-8", newline="") as handle:
+            lines = handle.read().splitlines()
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a {fmt} detections file (not UTF-8 text at byte "
+                         f"{exc.start})") from None
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror or exc}") from None
     start = 1 if fmt == "csv" else 0
     if fmt == "csv" and (not lines or tuple(lines[0].split(",")) != CSV_HEADER):
         raise InputError(f"{path}: expected the header {','.join(CSV_HEADER)}")
+    rows = {}
     for number, line in enumerate(lines[start:], start + 1):
         if not line.strip():
             continue
         try:
-            if fmt == "jsonl":
-                record = json.loads(line)
-                items = rows.setdefault(int(record["frame"]), [])
-                for box in record["boxes"]:
-                    items.append((box["box"], box["score"], box.get("track")))
-            else:
-                fields = next(csv.reader([line]))
-                if fmt == "csv":
-                    frame, track = int(fields[0]), (int(fields[1]) if fields[1] else None)
-                    box = [int(v) for v in fields[2:6]]
-                    score = float(fields[6])
-                else:
-                    frame, track = int(fields[0]) - 1, int(fields[1])
-                    left, top, width, height = (int(float(v)) for v in fields[2:6])
-                    box = [left, top, left + width, top + height]
-                    score = float(fields[6])
-                rows.setdefault(frame, []).append((box, score, track))
-        except (ValueError, KeyError, TypeError, IndexError, StopIteration) as exc:
-            raise InputError(f"{path}:{number}: not a {fmt} detections line ({exc})") from None
+            frame, items = _parse_line(line, fmt)
+            rows.setdefault(frame, []).extend(items)
+        except (ValueError, KeyError, TypeError, IndexError, OverflowError,
+                RecursionError) as exc:
+            raise InputError(f"{path}:{number}: not a {fmt} detections line "
+                             f"({' '.join(str(exc).split())[:80]})") from None
     result = {}
     for frame, items in sorted(rows.items()):
         boxes = np.array([item[0] for item in items], dtype=np.int32).reshape(-1, 4)
@@ -179,3 +181,68 @@ def read_detections(path, fmt=None):
             ids = np.zeros(0, np.int64)
         result[frame] = Detections(boxes, scores, ids)
     return result
+
+
+def _parse_line(line, fmt):
+    """``(frame, [(box, score, track), ...])`` of one line; ValueError etc. when malformed."""
+    if fmt == "jsonl":
+        record = json.loads(line)
+        if not isinstance(record, dict) or not isinstance(record.get("boxes"), list):
+            raise TypeError('expected {"frame": ..., "boxes": [...]}')
+        boxes = record["boxes"]
+        items = [(_box(box["box"]), _score(box["score"]), _track(box.get("track")))
+                 for box in boxes]
+        return _integer(record["frame"], "frame"), items
+    fields = next(csv.reader([line]))
+    if fmt == "csv":
+        frame = _integer(fields[0], "frame")
+        track = _track(fields[1] or None)
+        box = _box(fields[2:6])
+    else:
+        frame, track = _integer(fields[0], "frame") - 1, _track(fields[1])
+        left, top, width, height = (_pixel(v) for v in fields[2:6])
+        box = _box([left, top, left + width, top + height])
+    return frame, [(box, _score(fields[6]), track)]
+
+
+def _integer(value, what):
+    if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
+        raise ValueError(f"{what} {value!r} is not an integer")
+    return int(value)
+
+
+def _pixel(value):
+    """A MOTChallenge coordinate: any finite number, truncated to whole pixels."""
+    number = float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"coordinate {value!r} is not a finite number")
+    return int(number)
+
+
+def _box(values):
+    if len(values) != 4:
+        raise ValueError(f"a box has 4 coordinates, got {len(values)}")
+    box = [_integer(v, "coordinate") for v in values]
+    if not all(-2 ** 31 <= v < 2 ** 31 for v in box):
+        raise ValueError("box coordinate out of range")
+    if box[2] <= box[0] or box[3] <= box[1]:
+        raise ValueError("a box needs x2 > x1 and y2 > y1")
+    return box
+
+
+def _score(value):
+    if isinstance(value, bool):
+        raise ValueError("score is not a number")
+    score = float(value)
+    if not math.isfinite(score) or abs(score) > 3e38:
+        raise ValueError(f"score {value!r} is not a finite number")
+    return score
+
+
+def _track(value):
+    if value is None:
+        return None
+    track = _integer(value, "track")
+    if not -2 ** 63 <= track < 2 ** 63:
+        raise ValueError("track id out of range")
+    return track

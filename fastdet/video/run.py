@@ -57,8 +57,10 @@ class RunStats:
     interrupted: int | None = None
     #: Frames left out by ``realtime`` because processing fell behind.
     dropped: int = 0
-    #: Why the input ended early or a live stream stopped (``None``: it ended normally).
+    #: Why a live stream stopped (``None``: it ended normally).
     ended: str | None = None
+    #: What was damaged in the input and skipped or concealed (``None``: nothing).
+    damage: str | None = None
     times: StageTimes = field(default_factory=StageTimes)
     plan: ThreadPlan | None = None
 
@@ -87,7 +89,7 @@ class RunStats:
         bound = self.times.bound()
         bound = f"; bound by {bound}" if bound and self.frames else ""
         written = "; wrote " + ", ".join(str(p) for p in outputs) if outputs else ""
-        ended = f"; {self.ended}" if self.ended else ""
+        ended = "".join(f"; {note}" for note in (self.ended, self.damage) if note)
         return (f"{head}{self.frames} frames{dropped}, {self.boxes} detections, "
                 f"{len(self.track_ids)} tracks, {self.full_searches} full searches, "
                 f"{self.fps:.1f} fps; ms/frame: {per_frame} (CPU){bound}; kernels ready in "
@@ -95,30 +97,67 @@ class RunStats:
 
 
 # -- signals ------------------------------------------------------------------------------
+class _SignalGuard:
+    """What Ctrl-C and SIGTERM do at each moment of a run.
+
+    * While setting up (opening the input, warming up the kernels): raise
+      :class:`RunInterrupted` at once; but while an output is being created
+      (:meth:`deferred`), at the end of that, so no temporary file is orphaned.
+    * Once the stages start (:meth:`running`): the first signal stops reading
+      (the frames read still reach both outputs), a second aborts.  From then
+      on a signal never raises, so completing or discarding the outputs is
+      never cut short: a temporary file is always either renamed or removed.
+    """
+
+    def __init__(self, conveyor, stats):
+        self.conveyor, self.stats = conveyor, stats
+        self._mode = "raise"
+        self._pending = None
+
+    def handle(self, signum, _frame=None):
+        self.stats.interrupted = self.stats.interrupted or signum
+        if self._mode == "raise":
+            raise RunInterrupted(signum)
+        if self._mode == "defer":
+            self._pending = self._pending or signum
+        elif self.conveyor.stopping.is_set():
+            self.conveyor.abort()      # a second signal: give up at once
+        else:
+            self.conveyor.stop()
+
+    @contextlib.contextmanager
+    def deferred(self):
+        """A block a signal does not interrupt; it raises at the block's end instead."""
+        self._mode = "defer"
+        try:
+            yield
+        finally:
+            self._mode = "raise"
+        if self._pending:
+            raise RunInterrupted(self._pending)
+
+    def running(self):
+        """From now on signals stop and abort the stages, and never raise."""
+        if self._pending:
+            self.conveyor.stop()
+        self._mode = "run"
+
+
 @contextlib.contextmanager
 def _signals(conveyor, stats):
-    """Ctrl-C and SIGTERM: before the stages run, interrupt; while they run, stop, then abort.
+    """Install a :class:`_SignalGuard` for SIGINT and SIGTERM during the block; yield it.
 
     Only the main thread can handle signals; elsewhere (a worker thread of a
     batch runner) the caller's own handling stays in force.
     """
+    guard = _SignalGuard(conveyor, stats)
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield guard
         return
-
-    def handle(signum, _frame):
-        stats.interrupted = stats.interrupted or signum
-        if not conveyor.running:
-            raise RunInterrupted(signum)
-        if conveyor.stopping.is_set():
-            conveyor.abort()      # a second signal: give up at once
-        else:
-            conveyor.stop()
-
-    previous = {signum: signal.signal(signum, handle)
+    previous = {signum: signal.signal(signum, guard.handle)
                 for signum in (signal.SIGINT, signal.SIGTERM)}
     try:
-        yield
+        yield guard
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
@@ -142,8 +181,8 @@ def _settings(detector, config):
 def process_video(source, target=None, detector=None, config=None, callback=None, *,
                   detections=None, detections_format=None, start=0, end=None, warmup=0,
                   codec="h264", crf=None, preset=None, threads=None, realtime=False,
-                  debug_view=False, timeout=DEFAULT_TIMEOUT, progress=None, log=None,
-                  warm_up_notice=None):
+                  debug_view=False, timeout=DEFAULT_TIMEOUT, strict=False, progress=None,
+                  log=None, warm_up_notice=None):
     """Detect and track vehicles in a video, writing the annotated video and/or detections.
 
     Decoding, detection+tracking, drawing+encoding and the detections file run
@@ -188,6 +227,10 @@ def process_video(source, target=None, detector=None, config=None, callback=None
         Draw the live heat map and the detector's timings into the video.
     timeout : float
         Seconds a network source or camera may stay silent.
+    strict : bool
+        Damaged input (a file cut short, undecodable data, frames decoded
+        with errors) is an :class:`InputError`.  By default decoding goes on
+        wherever it can and ``RunStats.damage`` says what happened.
     progress : callable, optional
         ``progress(frames_done, frames_expected or None)`` about 10 times a
         second, on the calling thread.
@@ -206,11 +249,11 @@ def process_video(source, target=None, detector=None, config=None, callback=None
     ------
     InputError, ModelError, ConfigError
         One-line problems; those of the input and the outputs come before any
-        output exists.  An input that breaks off mid-way raises after the
-        outputs were completed with every frame before the break.
+        output exists.  On any error the outputs are discarded: nothing is
+        left under their names (a stream or FIFO keeps what it was sent).
     RunInterrupted
         A second Ctrl-C or SIGTERM (the outputs are discarded), or one before
-        the first frame.
+        the first frame was done (no output is written).
     """
     warmup = int(warmup)
     if warmup < 0:
@@ -218,73 +261,81 @@ def process_video(source, target=None, detector=None, config=None, callback=None
     cores = threads or numba.config.NUMBA_NUM_THREADS
     stats = RunStats()
     conveyor = Conveyor()
-    with contextlib.ExitStack() as stack:
-        stack.enter_context(_signals(conveyor, stats))
-        track_config, detector_config = _settings(detector, config)
-        period = track_config.search_period
-        plan = stats.plan = plan_threads(cores, target is not None,
-                                         1.0 / period if period else 1.0)
-        if log is not None:
-            log(plan.describe())
-        if isinstance(detector, VideoPipeline):
-            pipeline = detector
-        else:
-            pipeline = VideoPipeline(detector or Detector(config=detector_config,
-                                                          threads=plan.detector), track_config)
-        if isinstance(source, VideoSource):
-            video = source
-        else:
-            first = max(int(start) - warmup, 0)
-            video = stack.enter_context(VideoSource(source, first, end, timeout=timeout,
-                                                    threads=plan.decoder))
-        first_output = max(int(start), video.start)
-        rows = None
-        if not pipeline.config.tracking and hasattr(pipeline.detector, "plans"):
-            band = search_band(pipeline.detector.plans(video.size))
-            rows = None if band is None else (band[1], band[3])
-        sink = writer = None
-        if target is not None:
-            sink = stack.enter_context(VideoSink(
-                target, video.rate, video.size, codec, crf, preset, threads=plan.encoder,
-                time_base=video.time_base, colour=None if debug_view else video.colour))
-        if detections is not None:
-            writer = stack.enter_context(DetectionWriter(detections, detections_format))
-        warm_up = getattr(pipeline.detector, "warm_up", None)
-        if warm_up is not None:
-            with (warm_up_notice() if warm_up_notice else contextlib.nullcontext()):
-                stats.warmup = warm_up(video.first_frame)
-
-        inbox, outboxes = conveyor.queue(), []
-        if sink is not None:
-            outboxes.append(conveyor.queue())
-            conveyor.add("encode", encode, conveyor, outboxes[-1], sink, inbox=outboxes[-1])
-        outboxes.append(conveyor.queue())
-        conveyor.add("write", report, conveyor, outboxes[-1], writer, callback, stats,
-                     inbox=outboxes[-1])
-        conveyor.add("decode", decode, conveyor, video, inbox, realtime, stats)
-        conveyor.add("detect", detect, conveyor, inbox, outboxes, pipeline, rows, debug_view,
-                     first_output, stats, inbox=inbox)
-        started = time.perf_counter()
-        total = video.expected_frames
-        total = None if total is None else max(total - (first_output - video.start), 0)
-        tick = None if progress is None else (lambda: progress(stats.frames, total))
+    outputs = []
+    with _signals(conveyor, stats) as guard, contextlib.ExitStack() as stack:
         try:
-            conveyor.run(tick)
+            track_config, detector_config = _settings(detector, config)
+            period = track_config.search_period
+            plan = stats.plan = plan_threads(cores, target is not None,
+                                             1.0 / period if period else 1.0)
+            if log is not None:
+                log(plan.describe())
+            if isinstance(detector, VideoPipeline):
+                pipeline = detector
+            else:
+                pipeline = VideoPipeline(detector or Detector(config=detector_config,
+                                                              threads=plan.detector),
+                                         track_config)
+            if isinstance(source, VideoSource):
+                video = source
+            else:
+                first = max(int(start) - warmup, 0)
+                video = stack.enter_context(VideoSource(source, first, end, timeout=timeout,
+                                                        threads=plan.decoder, strict=strict))
+            first_output = max(int(start), video.start)
+            rows = None
+            if not pipeline.config.tracking and hasattr(pipeline.detector, "plans"):
+                band = search_band(pipeline.detector.plans(video.size))
+                rows = None if band is None else (band[1], band[3])
+            sink = writer = None
+            with guard.deferred():
+                if target is not None:
+                    sink = VideoSink(target, video.rate, video.size, codec, crf, preset,
+                                     threads=plan.encoder, time_base=video.time_base,
+                                     colour=None if debug_view else video.colour)
+                    outputs.append(sink)
+                if detections is not None:
+                    writer = DetectionWriter(detections, detections_format)
+                    outputs.append(writer)
+            warm_up = getattr(pipeline.detector, "warm_up", None)
+            if warm_up is not None:
+                with (warm_up_notice() if warm_up_notice else contextlib.nullcontext()):
+                    stats.warmup = warm_up(video.first_frame)
+
+            inbox, outboxes = conveyor.queue(), []
+            if sink is not None:
+                outboxes.append(conveyor.queue())
+                conveyor.add("encode", encode, conveyor, outboxes[-1], sink, inbox=outboxes[-1])
+            outboxes.append(conveyor.queue())
+            conveyor.add("write", report, conveyor, outboxes[-1], writer, callback, stats,
+                         inbox=outboxes[-1])
+            conveyor.add("decode", decode, conveyor, video, inbox, realtime, stats)
+            conveyor.add("detect", detect, conveyor, inbox, outboxes, pipeline, rows, debug_view,
+                         first_output, stats, inbox=inbox)
+            total = video.expected_frames
+            total = None if total is None else max(total - (first_output - video.start), 0)
+            tick = None if progress is None else (lambda: progress(stats.frames, total))
+            guard.running()
+            started = time.perf_counter()
+            try:
+                conveyor.run(tick)
+            finally:
+                stats.wall = time.perf_counter() - started
+                stats.times = conveyor.times
+            if conveyor.aborted or stats.frames == 0:
+                _discard(outputs)
+                if stats.interrupted:
+                    raise RunInterrupted(stats.interrupted)
+                return stats
+            for output in outputs:
+                output.close()
         except BaseException:
-            _discard(sink, writer)
+            guard.running()     # signals no longer raise: the discarding runs to its end
+            _discard(outputs)
             raise
-        finally:
-            stats.wall = time.perf_counter() - started
-            stats.times = conveyor.times
-        if conveyor.aborted:
-            _discard(sink, writer)
-            raise RunInterrupted(stats.interrupted or signal.SIGINT)
-    if stats.ended and not video.live and not stats.interrupted:
-        raise InputError(f"{stats.ended}; the outputs hold the {stats.frames} frames before it")
     return stats
 
 
-def _discard(*outputs):
+def _discard(outputs):
     for output in outputs:
-        if output is not None:
-            output.discard()
+        output.discard()

@@ -13,6 +13,12 @@ height is padded by one column on the right and/or one row at the bottom,
 copies of the last column or row; the picture is never rescaled (an
 853x480 input gives an 854x480 output whose first 853 columns are the input).
 
+Outputs that are not regular files (``-`` for standard output, a FIFO, a
+device) are written through in place; MP4 and QuickTime there are
+*fragmented* (the index ahead of each group of frames instead of one index
+first), which plays while it streams; ``-`` gets fragmented MP4, and AVI,
+which must seek back to finish, is refused.
+
 Timestamps: frames are written with the ``pts`` they are given (in the
 sink's ``time_base``, e.g. the input stream's), so variable and non-integer
 frame rates (29.97 = 30000/1001) are kept; without one a frame is placed
@@ -43,8 +49,13 @@ DEFAULT_CRF = {"h264": 23, "hevc": 28, "av1": 35, "vp9": 35, "mp4v": 5}
 DEFAULT_PRESET = {"h264": "ultrafast", "hevc": "ultrafast", "av1": "12", "vp9": "8"}
 #: Containers by suffix; MP4 and QuickTime files get their index first.
 CONTAINERS = {".mp4": "mp4", ".m4v": "mp4", ".mov": "mov", ".mkv": "matroska",
-              ".webm": "webm", ".avi": "avi"}
+              ".webm": "webm", ".avi": "avi", ".ts": "mpegts"}
 FASTSTART = frozenset({"mp4", "mov"})
+#: Written in place (``-``, a FIFO, a device), MP4 and QuickTime are fragmented: an index
+#: first needs the whole file, which a stream cannot be rewound to.  ``-`` is MP4.
+FRAGMENTED = "frag_keyframe+empty_moov+default_base_moof"
+#: Containers that must seek back to finish (their index at the end): files only.
+NEEDS_SEEKING = frozenset({"avi"})
 
 # FFmpeg's colour tags (AVColorSpace etc.): what the BGR -> YUV conversion used.
 _BT709, _UNSPECIFIED, _SMPTE170M, _LIMITED_RANGE = 1, 2, 6, 1
@@ -158,11 +169,17 @@ class VideoSink(StagedFile):
                  time_base=None, colour=None):
         options = codec_options(codec, crf, preset, threads)
         super().__init__(path)
-        container_format = CONTAINERS.get(self.path.suffix.lower())
+        streamed = str(path) == "-"
+        container_format = "mp4" if streamed else CONTAINERS.get(self.path.suffix.lower())
         if container_format is None:
             self.discard()
             raise InputError(f"cannot write a video to {path} (unsupported suffix; use one of "
                              f"{', '.join(CONTAINERS)})")
+        if self.in_place and container_format in NEEDS_SEEKING:
+            self.discard()
+            raise InputError(f"cannot write {path}: {container_format.upper()} cannot be "
+                             "streamed to a file that is not a regular one (use .mp4, .mkv "
+                             "or .ts)")
         self.codec = codec
         self.size = (int(size[0]), int(size[1]))
         self.rate = Fraction(fps).limit_denominator(1001000)
@@ -183,8 +200,15 @@ class VideoSink(StagedFile):
     def _open(self, container_format, options, threads, tags):
         if self.codec == "av1":
             os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its banner to stderr
-        container_options = {"movflags": "+faststart"} if container_format in FASTSTART else {}
-        self._container = av.open(str(self.temporary), "w", format=container_format,
+        container_options = {}
+        if container_format in FASTSTART:
+            container_options["movflags"] = FRAGMENTED if self.in_place else "+faststart"
+        self._handle = None
+        target = str(self.temporary)
+        if self.in_place:
+            # Through a Python file object: ``-`` continues this process's own stdout.
+            target = self._handle = self.open("wb")
+        self._container = av.open(target, "w", format=container_format,
                                   container_options=container_options)
         stream = self._container.add_stream(ENCODERS[self.codec], rate=self.rate,
                                             options=options)
@@ -272,14 +296,21 @@ class VideoSink(StagedFile):
         try:
             self._container.mux(self._stream.encode(None))
             self._container.close()  # writes the index, moved to the front (faststart)
+            if self._handle is not None:
+                self._handle.close()
         except (av.error.FFmpegError, OSError) as exc:
             raise InputError(f"cannot finish the video {self.path}: "
                              f"{getattr(exc, 'strerror', None) or exc}") from None
 
     def _abandon(self):
-        container = getattr(self, "_container", None)
-        if container is not None:
-            container.close()
+        try:
+            container = getattr(self, "_container", None)
+            if container is not None:
+                container.close()
+        finally:
+            handle = getattr(self, "_handle", None)
+            if handle is not None:
+                handle.close()
 
 
 def _colour_tags(colour):

@@ -26,6 +26,7 @@ from urllib.parse import urlparse
 import av
 
 from ..errors import InputError
+from .damage import InputDamage
 from .frame_arrays import FrameConverter
 from .seek import REORDER_SLACK, seek_point
 
@@ -109,6 +110,11 @@ class VideoSource:
     timeout : float or None
         Seconds to wait for a network source or camera to connect, and for
         each read after that (``None``: forever).
+    strict : bool
+        Damaged input is an :class:`InputError`: a packet the decoder cannot
+        decode, a frame decoded with errors, a file that ends before its
+        index says.  Otherwise (``strict=False``) decoding goes on wherever
+        it can and :attr:`damage` records what happened.
 
     Attributes
     ----------
@@ -131,6 +137,11 @@ class VideoSource:
         FFmpeg's colour matrix and range tags of the frames (``(1, 1)``:
         BT.709, limited range), for a :class:`~fastdet.video.sink.VideoSink`
         that passes decoded frames through.
+    damage : InputDamage
+        Damage met so far (false when none); ``damage.describe(frames_read)``
+        says it in one phrase.
+    frames_read : int
+        Frames yielded so far.
 
     Raises
     ------
@@ -146,8 +157,11 @@ class VideoSource:
     ...         ...
     """
 
-    def __init__(self, source, start=0, end=None, *, threads=None, timeout=DEFAULT_TIMEOUT):
+    def __init__(self, source, start=0, end=None, *, threads=None, timeout=DEFAULT_TIMEOUT,
+                 strict=True):
         self.name = str(source)
+        self.damage = InputDamage(self.name, strict)
+        self.frames_read = 0
         self.start = int(start)
         self.end = None if end is None else int(end)
         if self.start < 0:
@@ -172,6 +186,7 @@ class VideoSource:
         self.colour = (int(self._first.colorspace), int(self._first.color_range))
         self._converter = FrameConverter()
         self._first_bgr = None
+        self.damage.expected = self.expected_frames
 
     # -- opening --------------------------------------------------------------------
     def _open(self):
@@ -230,11 +245,17 @@ class VideoSource:
         self.ended = None
 
     def _frames_from_container(self):
-        """Decoded frames in order, with read failures turned into :class:`InputError`."""
-        decoded = self._container.decode(self._stream)
+        """Decoded frames in order; damage recorded (or raised when strict), read failures
+        turned into :class:`InputError`.
+
+        Packets are decoded one by one, so that one the decoder cannot read is
+        skipped rather than ending the stream.
+        """
+        stream = self._stream
+        packets = self._container.demux(stream)
         while True:
             try:
-                frame = next(decoded)
+                packet = next(packets)
             except StopIteration:
                 return
             except (av.error.FFmpegError, OSError) as exc:
@@ -246,9 +267,17 @@ class VideoSource:
                 if self._index == 0:
                     raise InputError(f"cannot read {self.name} as a video: "
                                      f"{_reason(exc)}") from None
-                raise InputError(f"{self.name}: {_reason(exc)} after frame "
-                                 f"{self._index - 1}") from None
-            yield frame
+                self.damage.ended_early(self._index - 1, _reason(exc))
+                return
+            try:
+                frames = stream.decode(packet)
+            except av.error.FFmpegError as exc:
+                self.damage.undecodable_packet(self._index - 1, _reason(exc))
+                continue
+            for frame in frames:
+                if frame.is_corrupt and self._index >= self.start:
+                    self.damage.corrupt_frame(self._index)
+                yield frame
 
     def _read_first(self):
         # Reading a frame is the only reliable test of "has frames": headers
@@ -321,6 +350,7 @@ class VideoSource:
         first, self._first = self._first, None
         if first is not None:
             self._index += 1
+            self.frames_read += 1
             yield first
         for frame in self._decoded:
             if self.end is not None and self._index >= self.end:
@@ -330,12 +360,12 @@ class VideoSource:
                                  f"{self.size[0]}x{self.size[1]} to {frame.width}x{frame.height} "
                                  f"at frame {self._index}")
             self._index += 1
+            self.frames_read += 1
             yield frame
         last = self.frame_count if self.end is None else min(self.end, self.frame_count or 0)
-        if self._count_from_index and self._index < last:
+        if self._count_from_index and self._index < last and self.damage.ended_after is None:
             # The index promised more: the file is cut short or its data is damaged.
-            raise InputError(f"{self.name}: the input breaks off after frame {self._index - 1} "
-                             f"of {self.frame_count} (truncated or corrupt)")
+            self.damage.ended_early(self._index - 1)
 
     def __iter__(self):
         """Yield BGR uint8 frames of shape (height, width, 3), in order."""

@@ -35,7 +35,6 @@ import numpy as np
 from av.video.reformatter import VideoReformatter
 
 from ..detector.scoring import STAGES
-from ..errors import InputError
 from ..viz.draw import debug_frame, draw_detections_yuv420
 from .frame_arrays import FrameConverter, plane_view
 
@@ -295,12 +294,10 @@ def decode(clock, conveyor, source, outbox, realtime, stats):
                 stats.dropped += _put_newest(outbox, (index, frame))
             else:
                 conveyor.put(outbox, (index, frame), clock)
-    except InputError as exc:
-        # The input broke off: every frame before it is good and goes to the outputs.
-        stats.ended = str(exc)
     finally:
         frames.close()
-    stats.ended = stats.ended or source.ended
+    stats.ended = source.ended
+    stats.damage = source.damage.describe(source.frames_read) or None
     conveyor.put(outbox, END, clock)
 
 

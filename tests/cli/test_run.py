@@ -263,7 +263,7 @@ def test_error_start_past_the_end(fastdet, stub_pipeline, block_video, tmp_path,
 def test_error_output_would_overwrite_input(fastdet, stub_pipeline, block_video, tmp_path,
                                            capsys):
     expect_error(fastdet, ["run", str(block_video), "--out", str(block_video)], capsys,
-                 "would overwrite the input", tmp_path)
+                 "it is the input", tmp_path)
 
 
 def test_error_bad_every(fastdet, block_video, tmp_path, capsys):
@@ -293,7 +293,7 @@ def test_ctrl_c_completes_both_outputs(fastdet, monkeypatch, block_video, tmp_pa
     assert "interrupted" in captured.err
 
 
-def test_ctrl_c_before_any_frame_leaves_no_video(fastdet, monkeypatch, block_video, tmp_path):
+def test_ctrl_c_before_any_frame_leaves_no_output(fastdet, monkeypatch, block_video, tmp_path):
     class Interrupted(VideoPipeline):
         def process(self, frame):
             raise KeyboardInterrupt
@@ -302,9 +302,9 @@ def test_ctrl_c_before_any_frame_leaves_no_video(fastdet, monkeypatch, block_vid
                         lambda args: Interrupted(BlockDetector(), TrackConfig()))
     out, dets = tmp_path / "o.mp4", tmp_path / "d.jsonl"
     assert fastdet(["run", str(block_video), "--out", str(out), "--detections", str(dets)]) == 130
-    assert not out.exists()                 # a video without frames is not a video
-    assert dets.read_text() == ""           # but "no frame done" is a valid detections file
-    assert leftovers(tmp_path) == []
+    # A video without frames is not a video; the detections file goes with it, so the two
+    # outputs always hold the same frames.
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
 def test_pipeline_frames_are_numbered_from_the_video_start(stub_pipeline, block_video):

@@ -162,6 +162,16 @@ def test_text_file(tmp_path):
     assert_model_error(path)
 
 
+def test_pickle_is_refused_without_suggesting_to_unpickle_it(tmp_path):
+    import pickle
+
+    path = tmp_path / "model.npz"
+    path.write_bytes(pickle.dumps({"weights": [1.0, 2.0]}))
+    with pytest.raises(ModelError, match="not an .npz archive") as raised:
+        load_model(path)
+    assert "pickle" not in str(raised.value).replace(str(path), "")
+
+
 def test_plain_npy_file(tmp_path):
     path = tmp_path / "weights.npz"
     np.save(path, np.zeros(8460, np.float32))  # an .npy, not an .npz

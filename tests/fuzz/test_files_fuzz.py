@@ -3,9 +3,9 @@
 The promise: a reader returns what the file holds or raises
 :class:`fastdet.InputError` naming the file; nothing else escapes.
 
-``read_detections`` (``fastdet/video/detection_files.py``) is being rewritten
-with the video layer, so its escapes found here are recorded as expected
-failures (``FOUND_IN_READ_DETECTIONS``) rather than fixed in this change.
+Fuzzing found ``read_detections`` letting OverflowError (``1e400``, ``inf``),
+UnicodeDecodeError and NumPy's ValueError escape; the cases it found are
+kept as regression tests (``test_found_detections_escapes``).
 """
 
 from __future__ import annotations
@@ -82,34 +82,36 @@ def read(tmp_path_factory, data, fmt):
         assert detections.xyxy.shape == (len(detections), 4)
 
 
-#: What fuzzing found read_detections letting escape (left to the video rewrite):
-#: OverflowError for 1e400 / huge integers, UnicodeDecodeError for bytes that are
-#: not UTF-8, ValueError from NumPy for boxes or scores that are not numbers.
-FOUND_IN_READ_DETECTIONS = pytest.mark.xfail(
-    raises=(OverflowError, ValueError), strict=False,
-    reason="read_detections lets OverflowError, UnicodeDecodeError and NumPy's ValueError "
-           "escape; fastdet/video is being rewritten (issue 17 report)")
-
-
-@FOUND_IN_READ_DETECTIONS
 @pytest.mark.parametrize("fmt", ["jsonl", "csv", "mot"])
-@settings(report_multiple_bugs=False)  # one exception, so that xfail can check its type
 @given(data=st.data())
 def test_mutated_detections_files(tmp_path_factory, fmt, data):
     read(tmp_path_factory, data.draw(mutated_files(valid_lines(tmp_path_factory, fmt))), fmt)
 
 
-@pytest.mark.xfail(raises=(OverflowError, ValueError), strict=True,
-                   reason="read_detections escapes found by fuzzing (issue 17 report)")
 @pytest.mark.parametrize("fmt, data", [
-    ("jsonl", b'{"frame": 1e400, "boxes": []}\n'),                        # OverflowError
+    ("jsonl", b'{"frame": 1e400, "boxes": []}\n'),                        # was OverflowError
     ("jsonl", b'{"frame": 0, "boxes": [{"box": ["a", 1, 2, 3], "score": 1}]}\n'),  # ValueError
     ("jsonl", b'{"frame": 0, "boxes": [{"box": [1, 2, 3, 99999999999], "score": 1}]}\n'),
-    ("mot", b"1,1,inf,2,3,4,0.5,-1,-1,-1\n"),                             # OverflowError
+    ("mot", b"1,1,inf,2,3,4,0.5,-1,-1,-1\n"),                             # was OverflowError
     ("csv", b"frame,track,x1,y1,x2,y2,score\n0,,1,2,3,4,\xff\n"),         # UnicodeDecodeError
+    ("jsonl", b'{"frame": 0, "boxes": [{"box": [5, 2, 3, 4], "score": 1}]}\n'),  # x2 < x1
+    ("jsonl", b'{"frame": 0, "boxes": [{"box": [1, 2, 3, 4], "score": NaN}]}\n'),
+    ("jsonl", b'{"frame": true, "boxes": []}\n'),
+    ("jsonl", b'[' * 100000 + b']' * 100000 + b'\n'),                     # nesting too deep
+    ("csv", b"frame,track,x1,y1,x2,y2,score\n0,x,1,2,3,4,0.5\n"),
 ])
-def test_found_detections_escapes(tmp_path_factory, fmt, data):
-    read(tmp_path_factory, data, fmt)
+def test_found_detections_cases_are_input_errors(tmp_path, fmt, data):
+    path = tmp_path / f"dets{SUFFIX[fmt]}"
+    path.write_bytes(data)
+    with pytest.raises(InputError, match=f"{path}:"):
+        read_detections(path)
+
+
+def test_mot_coordinates_may_be_fractional(tmp_path):
+    path = tmp_path / "dets.txt"
+    path.write_text("1,3,10.5,20.25,30.5,40.0,0.9,-1,-1,-1\n")
+    detections = read_detections(path)[0]
+    assert detections.xyxy.tolist() == [[10, 20, 40, 60]] and detections.track_id.tolist() == [3]
 
 
 # -- annotations (fastdet/evaluation/annotations.py) ------------------------------

@@ -13,9 +13,9 @@ the promises of ``docs/reliability.md``:
   was before (or still absent);
 * no temporary file is left in any folder the command touched.
 
-Rows are data: the video verbs (``run``, ``batch``, stream inputs) add
-their faults (zero-frame video, frames that change size, audio only, ...)
-as more rows of the same table.
+Rows are data: those of ``run`` and its stream inputs are in
+``matrix_video_rows.py``; the machinery (:class:`~matrix.Row`, the checks) is in
+``matrix_checks.py``.
 """
 
 from __future__ import annotations
@@ -24,33 +24,24 @@ import contextlib
 import io
 import json
 import os
-import re
 import shutil
 import stat
-import subprocess
-import sys
 import tempfile
-import threading
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import numpy as np
 import pytest
+from matrix_checks import (TABLE_HEADER, Row, check_row, fifo_reader, full_disk, markdown_table,
+                           read_only_out, s)
+from matrix_batch_rows import BATCH_ROWS
+from matrix_video_rows import VIDEO_ROWS, VideoInputs
 
-from fastdet.cli.app import EXIT_ERROR, main
+from fastdet.cli.app import main
 from fastdet.detector.model import load_model
-from fastdet.files.atomic import is_temporary
-from filesystems import private_device, read_only, tiny_filesystem
+from filesystems import private_device
 
 ROOT = Path(__file__).resolve().parents[2]
-FASTDET = [sys.executable, "-c",
-           "import sys; from fastdet.cli import main; sys.exit(main(sys.argv[1:]))"]
-#: Lines besides the error a command may print on stderr: the notice that
-#: kernels are compiling, and the progress lines of training and tuning.
-NOTICE = re.compile(r"^(fastdet: compiling kernels|\d+ crops \(|features: |random split: |"
-                    r"leak-free split: |cross-validation C=|chosen C=|\d+ combinations on )")
 
 
 # -- the inputs every row draws from ---------------------------------------------
@@ -163,73 +154,12 @@ class Inputs:
 
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory, data_dir):
-    return Inputs(tmp_path_factory.mktemp("inputs"), data_dir)
+    inputs = Inputs(tmp_path_factory.mktemp("inputs"), data_dir)
+    with VideoInputs(inputs.dir / "video", data_dir) as inputs.video:
+        yield inputs
 
 
 # -- rows ------------------------------------------------------------------------
-@dataclass
-class Row:
-    """One fault of one verb and the behaviour promised.
-
-    ``argv(inputs, out)`` builds the command line (``out``: the row's own
-    empty folder); ``names(inputs, out)`` the file the error line must name;
-    ``problem`` a regular expression it must match; ``guarded(inputs, out)``
-    the files that must end up as they started; ``setup(inputs, out)`` a
-    context manager around the run (a mount, a reader); ``check(inputs, out,
-    stdout)`` what a successful run must have produced; ``messages`` the
-    lines a successful run prints on stderr (when stdout holds the output).
-    """
-
-    verb: str
-    fault: str
-    argv: Callable
-    code: int = EXIT_ERROR
-    names: Callable | None = None
-    problem: str = ""
-    guarded: Callable = lambda i, o: []
-    setup: Callable | None = None
-    check: Callable | None = None
-    subprocess: bool = False
-    messages: str = "^$"
-
-    @property
-    def id(self):
-        return f"{self.verb}: {self.fault}"
-
-
-def s(path):
-    return str(path)
-
-
-@contextlib.contextmanager
-def full_disk(folder, previous_size=9000):
-    """``folder/disk``: a 16 KiB disk holding a file ``previous`` (rows run as root only)."""
-    with tiny_filesystem(folder / "disk", size_kib=16) as disk:
-        if disk is None:
-            pytest.skip("a full disk needs root to mount a tmpfs")
-        (disk / "previous").write_bytes(b"p" * previous_size)
-        yield disk
-
-
-@contextlib.contextmanager
-def read_only_out(folder):
-    with read_only(folder):
-        yield folder
-
-
-@contextlib.contextmanager
-def fifo_reader(path, received):
-    os.mkfifo(path)
-    # A daemon: should the FIFO be replaced instead of written (the bug this
-    # row guards against), the reader waits forever, but the tests go on.
-    reader = threading.Thread(target=lambda: received.append(path.read_bytes()), daemon=True)
-    reader.start()
-    try:
-        yield
-    finally:
-        reader.join(timeout=60)
-
-
 def loads_model(data):
     """The model whose file content is ``data``."""
     with tempfile.TemporaryDirectory() as folder:
@@ -298,7 +228,7 @@ ROWS = [
         problem="heat.threshold must be a finite number"),
     Row("detect", "--out-dir read-only",
         lambda i, o: ["detect", s(i.image), "--out-dir", s(o)],
-        names=lambda i, o: o / "image.jpg", problem="Read-only file system|not writable",
+        names=lambda i, o: o, problem="Read-only file system|not writable",
         guarded=lambda i, o: [o / "image.jpg"], setup=lambda i, o: read_only_out(o)),
     Row("detect", "--out-dir on a full disk",
         lambda i, o: ["detect", s(i.image), "--out-dir", s(o / "disk")],
@@ -506,58 +436,13 @@ ROWS += [
 ]
 
 
-# -- the checks ----------------------------------------------------------------------
-def snapshot(paths):
-    return {str(p): (Path(p).read_bytes() if Path(p).is_file() else None) for p in paths}
+# -- the matrix ----------------------------------------------------------------------
+ALL_ROWS = ROWS + VIDEO_ROWS + BATCH_ROWS
 
 
-def leftovers(*folders):
-    found = []
-    for folder in folders:
-        for root, _, files in os.walk(folder):
-            found += [os.path.join(root, f) for f in files if is_temporary(f) or ".part" in f]
-    return found
-
-
-def run_row(row, argv, capfd):
-    if row.subprocess:
-        result = subprocess.run([*FASTDET, *argv], cwd=ROOT, capture_output=True, timeout=600)
-        return result.returncode, result.stdout, result.stderr.decode()
-    code = main(argv)
-    captured = capfd.readouterr()
-    return code, captured.out.encode(), captured.err
-
-
-@pytest.mark.parametrize("row", ROWS, ids=lambda row: row.id)
+@pytest.mark.parametrize("row", ALL_ROWS, ids=lambda row: row.id)
 def test_row(row, inputs, tmp_path, capfd):
-    out = tmp_path / "out"
-    out.mkdir()
-    setup = row.setup(inputs, out) if row.setup else contextlib.nullcontext()
-    with setup:
-        argv = row.argv(inputs, out)
-        guarded = row.guarded(inputs, out)
-        before = snapshot(guarded)
-        capfd.readouterr()
-        code, stdout, stderr = run_row(row, argv, capfd)
-        after = snapshot(guarded)
-        left = leftovers(out, inputs.dir)
-        assert "Traceback" not in stderr, stderr
-        lines = [line for line in stderr.splitlines() if not NOTICE.match(line)]
-        assert code == row.code, f"exit {code}, stderr: {stderr}"
-        if row.code == EXIT_ERROR:
-            assert len(lines) == 1 and lines[0].startswith("fastdet: error: "), stderr
-            problem = lines[0]
-            if row.names is not None:
-                named = str(row.names(inputs, out))
-                assert named in lines[0], lines[0]
-                problem = problem.replace(named, "<file>")  # the problem, not the file's name
-            assert re.search(row.problem, problem), lines[0]
-        else:
-            assert all(re.search(row.messages, line) for line in lines), stderr
-            if row.check is not None:
-                assert row.check(inputs, out, stdout)
-        assert after == before, "a guarded file changed"
-        assert not left, f"temporary files left: {left}"
+    check_row(row, inputs, tmp_path, capfd)
 
 
 def test_debug_shows_the_traceback(inputs):
@@ -569,6 +454,23 @@ def test_debug_shows_the_traceback(inputs):
         main(["detect", s(inputs / "missing.jpg"), "--debug"])
 
 
-def test_every_non_video_verb_has_rows():
-    verbs = {row.verb for row in ROWS}
-    assert {"detect", "eval", "train", "mine", "tune", "viz"} <= verbs
+def test_every_verb_that_reads_or_writes_has_rows():
+    verbs = {row.verb for row in ALL_ROWS}
+    assert {"detect", "eval", "train", "mine", "tune", "viz", "run"} <= verbs
+
+
+def test_the_documented_table_is_the_matrix():
+    """``docs/reliability.md`` lists every row, as run (``print_table`` below writes it)."""
+    text = (ROOT / "docs" / "reliability.md").read_text()
+    start = text.index(TABLE_HEADER[0])
+    end = text.find("\n\n", start)
+    assert text[start:end if end >= 0 else None].rstrip("\n") == markdown_table(ALL_ROWS)
+
+
+def print_table():
+    """Print the table for ``docs/reliability.md``: ``python tests/reliability/test_matrix.py``."""
+    print(markdown_table(ALL_ROWS))
+
+
+if __name__ == "__main__":
+    print_table()

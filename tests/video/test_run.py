@@ -119,16 +119,29 @@ def test_an_error_in_a_stage_leaves_no_output(data_dir, detector, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
-def test_a_cut_input_keeps_the_frames_before_the_break(data_dir, detector, tmp_path):
+def test_a_cut_input_is_processed_as_far_as_it_decodes(data_dir, detector, tmp_path):
     cut = tmp_path / "cut.mp4"
     cut.write_bytes((data_dir / "test_video.mp4").read_bytes()[:300_000])
     dets = tmp_path / "dets.jsonl"
-    with pytest.raises(InputError, match=r"cut.mp4: .*; the outputs hold the (\d+) frames"):
-        process_video(cut, tmp_path / "out.mp4", VideoPipeline(detector), detections=dets)
-    lines = dets.read_text().splitlines()
-    assert 0 < len(lines) < 38 and leftovers(tmp_path) == []
+    stats = process_video(cut, tmp_path / "out.mp4", VideoPipeline(detector), detections=dets)
+    # The first 300 kB hold 4 whole frames, then part of a fifth that does not decode.
+    assert stats.frames == 4 and [json.loads(line)["frame"] for line in
+                                  dets.read_text().splitlines()] == [0, 1, 2, 3]
+    assert stats.damage.startswith("input damaged: read 4 of 38 frames, decoding failed after "
+                                   "frame 3 (Invalid data found when processing input")
+    assert stats.damage in stats.summary([])
     with VideoSource(tmp_path / "out.mp4") as video:
-        assert sum(1 for _ in video.decoded_frames()) == len(lines)
+        assert sum(1 for _ in video.decoded_frames()) == 4
+    assert leftovers(tmp_path) == []
+
+
+def test_a_cut_input_is_an_error_when_strict(data_dir, detector, tmp_path):
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes((data_dir / "test_video.mp4").read_bytes()[:300_000])
+    with pytest.raises(InputError, match=r"cut.mp4: .*after frame 3"):
+        process_video(cut, tmp_path / "out.mp4", VideoPipeline(detector),
+                      detections=tmp_path / "dets.jsonl", strict=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mp4"]
 
 
 def test_realtime_drops_frames_when_processing_falls_behind(data_dir, tmp_path):
