@@ -19,6 +19,11 @@ _PROBE = r"""
 import json, sys
 import fastdet
 imported = sorted({name.split(".")[0] for name in sys.modules})
+if sys.argv[1] == "cli detect":
+    # The command line as `fastdet detect` builds it: every verb's parser.
+    from fastdet.cli.app import build_parser
+    build_parser()
+    imported = sorted({name.split(".")[0] for name in sys.modules})
 if sys.argv[1] == "detect":
     import numpy as np
     detector = fastdet.Detector(threads=1)
@@ -35,7 +40,7 @@ def loaded_packages(stage):
     return set(json.loads(completed.stdout.strip().splitlines()[-1]))
 
 
-@pytest.mark.parametrize("stage", ["import", "detect"])
+@pytest.mark.parametrize("stage", ["import", "detect", "cli detect"])
 def test_nothing_a_detection_does_not_need(stage):
     loaded = loaded_packages(stage)
     assert "fastdet" in loaded and "numba" in loaded and "cv2" in loaded

@@ -23,7 +23,7 @@ from urllib.parse import unquote, urlparse
 from ..errors import InputError
 from ..files.atomic import STDOUT, output_in_folder, refuse_overwriting_inputs
 from ..video.detection_files import FORMATS
-from ..video.sink import ENCODERS
+from ..video.codecs import ENCODERS
 from .common import compile_notice, make_pipeline, message_stream, track_config
 
 
