@@ -28,7 +28,7 @@ from ..kernels.score import (
 from .features import WINDOW, color_planes, histogram_bin_lut, hog_input
 from .plan import search_band
 
-#: Work arrays kept before they are all dropped (see ScaleScorer._buffer).
+#: Work arrays kept before they are all dropped (see ScaleScorer._start_frame).
 _MAX_BUFFERS = 64
 
 #: Names of the timed stages, in pipeline order.
@@ -129,11 +129,18 @@ class ScaleScorer:
         key = (kind, id(plan))
         entry = self._workspace.get(key)
         if entry is None or entry[0] is not plan:
-            if len(self._workspace) > _MAX_BUFFERS:
-                # Plans made outside Detector.plans() (e.g. by callers of score_scale).
-                self._workspace.clear()
             entry = self._workspace[key] = (plan, np.empty(shape, dtype))
         return entry[1]
+
+    def _start_frame(self):
+        """Drop the work arrays once too many frame sizes have left theirs behind.
+
+        Only here, before a frame's first array is taken: dropping them in the
+        middle of a frame would hand a scale a new, unfilled array between
+        computing its cells and scoring them.
+        """
+        if len(self._workspace) > _MAX_BUFFERS:
+            self._workspace.clear()
 
     def scaled_region(self, region, plan, channels, rows=None):
         """A scale's region resized to ``plan.scaled_size``; at scale 1, the
@@ -173,6 +180,7 @@ class ScaleScorer:
         -------
         PreparedFrame
         """
+        self._start_frame()
         band = search_band(plans)
         if band is None:
             return PreparedFrame(None, None, (0, 0))
@@ -182,6 +190,7 @@ class ScaleScorer:
 
     def frame_buffers(self, plans):
         """A :class:`PreparedFrame` of reused arrays, to be filled by :meth:`convert_rows`."""
+        self._start_frame()
         band = search_band(plans)
         if band is None:
             return PreparedFrame(None, None, (0, 0))

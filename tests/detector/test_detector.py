@@ -310,3 +310,22 @@ def test_a_failing_task_fails_the_frame_without_hanging(random_model, monkeypatc
             detector.hits(frame)
     finally:
         Detector(random_model, threads=1)  # restore the thread count for later tests
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_hits_do_not_depend_on_the_frame_sizes_seen_before(threads):
+    """A detector fed frames of many sizes (more work arrays than it keeps) gives each frame
+    the hits a new detector gives it.  Found by fuzzing: the arrays were once dropped in the
+    middle of a frame, between computing a scale's cells and scoring them."""
+    rng = np.random.default_rng(1)
+    frames = []
+    for _ in range(24):
+        height, width = int(rng.integers(64, 400)), int(rng.integers(64, 720))
+        frame = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
+        frame[: height // 2] = rng.integers(0, 256)
+        frames.append(frame)
+    seasoned = Detector(threads=threads)
+    for frame in frames:
+        seen, new = seasoned.hits(frame), Detector(threads=threads).hits(frame)
+        np.testing.assert_array_equal(seen.boxes, new.boxes)
+        np.testing.assert_array_equal(seen.scores, new.scores)
