@@ -177,7 +177,9 @@ def process_one(input_path, outputs, options, frame_range=None, warmup_frames=0,
     start, end = frame_range or (0, None)
     warm_start = max(start - int(warmup_frames), 0)
     try:
-        reader = VideoSource(input_path, warm_start, end)
+        # The worker's cores are planned (cluster.plan_layout): FFmpeg's own
+        # default, a decoding thread per core in every worker, would oversubscribe them.
+        reader = VideoSource(input_path, warm_start, end, threads=options.threads)
     except InputError:
         if warm_start == 0:
             raise
@@ -251,7 +253,7 @@ def _empty_result(started):
             "end_state": None, "started": started, "finished": time.time()}
 
 
-def render_one(input_path, frame_range, detections_part, ids, outputs):
+def render_one(input_path, frame_range, detections_part, ids, outputs, threads=1):
     """Draw a segment's detections into its part of the annotated video.
 
     Parameters
@@ -265,6 +267,8 @@ def render_one(input_path, frame_range, detections_part, ids, outputs):
         Its track ids -> whole-video ids.
     outputs : OutputPaths
         ``video`` (the part to write) and optionally ``thumbnail``.
+    threads : int
+        Decoder and encoder threads (the task's share of the worker's cores).
 
     Returns
     -------
@@ -273,8 +277,9 @@ def render_one(input_path, frame_range, detections_part, ids, outputs):
     """
     start, end = frame_range
     with contextlib.ExitStack() as stack:
-        reader = stack.enter_context(VideoSource(input_path, start, end))
-        writer = stack.enter_context(VideoSink(outputs.video, reader.fps, reader.size))
+        reader = stack.enter_context(VideoSource(input_path, start, end, threads=threads))
+        writer = stack.enter_context(VideoSink(outputs.video, reader.fps, reader.size,
+                                               threads=threads))
         expected = reader.expected_frames
         tap = _ThumbnailTap(writer, 0 if expected is None else expected // 2)
         frames = iter(reader)

@@ -357,7 +357,8 @@ class _SegmentedVideo:
                "detections": str(self._part(k, ".jsonl")), "ids": self.maps[k].to_dict(),
                "video": str(self._part(k, ".mp4")),
                "thumbnail": (None if k or self.outputs.thumbnail is None
-                             else str(self.outputs.thumbnail))}
+                             else str(self.outputs.thumbnail)),
+               "threads": self.run.settings.threads}
         future = self.run.submit(render_task, job, key=f"{self.video.key}-render{k}")
         self._tags[future.key] = ("render", k)
         return future
