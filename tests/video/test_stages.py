@@ -15,10 +15,11 @@ from fastdet.video.stages import END, Conveyor, plan_threads
 # -- the thread plan -------------------------------------------------------------------
 @pytest.mark.parametrize("cores, video, fraction, expected", [
     (2, True, 1.0, (1, 1, 1)),       # three parts, two cores: one each (the minimum)
-    (2, False, 1.0, (1, 2, 0)),      # the detector bounds the run: it may use idle time
+    (2, False, 1.0, (1, 1, 0)),      # each a core: no spare core for the heavier detector
     (2, False, 0.2, (2, 1, 0)),      # --every 5: decoding is most of the work
     (1, True, 1.0, (1, 1, 1)),
-    (4, False, 1.0, (2, 3, 0)),
+    (4, False, 1.0, (2, 2, 0)),
+    (4, True, 1.0, (1, 2, 1)),       # the heaviest takes the one spare core
     (8, True, 1.0, (2, 3, 3)),
 ])
 def test_plan_shares_the_cores_by_load(cores, video, fraction, expected):
