@@ -2,8 +2,8 @@
 
 :class:`BatchSetup` is registered once per batch (named after the model's
 and the configuration's hashes) and set up once per worker process: it
-limits the codec threads, loads the model from the bytes it carries and runs
-the pipeline on a noise frame, which loads the compiled kernels from Numba's
+loads the model from the bytes it carries and runs the pipeline on a noise
+frame, which loads the compiled kernels from Numba's
 cache (or compiles them once, on a machine whose cache is empty).  Tasks then only
 carry paths and the plugin's name; each task thread builds its
 :class:`~fastdet.Detector` on the shared model once.
@@ -16,7 +16,6 @@ not retried; anything else propagates, and Dask retries the task.
 from __future__ import annotations
 
 import asyncio
-import os
 import tempfile
 import threading
 import time
@@ -71,8 +70,6 @@ class BatchSetup(WorkerPlugin):
         if self.model is not None:
             return
         start = time.perf_counter()
-        # OpenCV's FFmpeg decoder would otherwise start a thread per core in every worker.
-        os.environ.setdefault("OPENCV_FFMPEG_THREADS", str(self.settings.threads))
         with tempfile.TemporaryDirectory(prefix="fastdet-model-") as folder:
             path = Path(folder) / "model.npz"
             path.write_bytes(self.settings.model_bytes)
