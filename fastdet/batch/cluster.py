@@ -110,8 +110,7 @@ def _local_client(workers, threads):
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 1):
         raise InputError(f"--workers must be at least 1, got {workers}")
-    environment = {"NUMBA_NUM_THREADS": str(threads), "OPENCV_FFMPEG_THREADS": str(threads),
-                   "OMP_NUM_THREADS": "1"}
+    environment = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": "1"}
     with LocalCluster(n_workers=workers or plan_layout(threads=threads), threads_per_worker=1,
                       processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0",
                       silence_logs=logging.ERROR, env=environment) as cluster, \
