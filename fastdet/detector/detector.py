@@ -79,6 +79,10 @@ class _TaskQueue:
             event.set()
 
 
+#: Frame sizes whose plans, tasks and windows a detector keeps; older sizes are planned again.
+PLANNED_SIZES = 16
+
+
 def _load_kernels(families):
     """The preload thread: a failure here only means each kernel loads (and
     reports any error) at its first call instead."""
@@ -213,12 +217,17 @@ class Detector:
         return self._pool
 
     def plans(self, frame_size):
-        """The scale plans for frames of ``(width, height)`` (cached)."""
+        """The scale plans for frames of ``(width, height)`` (cached for the last
+        :data:`PLANNED_SIZES` sizes)."""
         plans = self._plans.get(frame_size)
         if plans is None:
             # Threads planning the same size at once all keep the first plans stored.
             plans = self._plans.setdefault(
                 frame_size, plan_scales(self.config, self.model.options, frame_size))
+            # A folder of images of every size must not grow the caches without end.
+            for size in list(self._plans)[:-PLANNED_SIZES]:
+                for cache in (self._plans, self._bands, self._all_windows):
+                    cache.pop(size, None)
         return plans
 
     def bands(self, frame_size):

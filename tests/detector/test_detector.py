@@ -12,7 +12,7 @@ from fastdet.detector.config import (
     ScaleConfig,
     SearchConfig,
 )
-from fastdet.detector.detector import Detector
+from fastdet.detector.detector import PLANNED_SIZES, Detector
 from fastdet.detector.features import FeatureLayout, FeatureOptions
 from fastdet.detector.frames import as_bgr_frame
 from fastdet.detector.model import Model
@@ -325,7 +325,10 @@ def test_hits_do_not_depend_on_the_frame_sizes_seen_before(threads):
         frame[: height // 2] = rng.integers(0, 256)
         frames.append(frame)
     seasoned = Detector(threads=threads)
-    for frame in frames:
+    for frame in frames + frames[:3]:     # the first sizes again, once their plans were dropped
         seen, new = seasoned.hits(frame), Detector(threads=threads).hits(frame)
         np.testing.assert_array_equal(seen.boxes, new.boxes)
         np.testing.assert_array_equal(seen.scores, new.scores)
+    # A process fed endless new sizes keeps the plans of the last few only.
+    assert len(seasoned._plans) == len(seasoned._all_windows) == PLANNED_SIZES
+    assert len(seasoned._bands) <= PLANNED_SIZES
