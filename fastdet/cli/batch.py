@@ -10,6 +10,7 @@ from __future__ import annotations
 import sys
 
 from ..video.detection_files import FORMATS
+from .common import add_schedule_options
 
 #: Exit code when the batch ran but some videos failed.
 EXIT_SOME_FAILED = 1
@@ -29,10 +30,7 @@ def add_batch_parser(subparsers):
     batch.add_argument("--model", metavar="M", help="model file (.npz); default: bundled model")
     batch.add_argument("--config", metavar="C",
                        help="TOML config overriding built-in defaults ([track] for video settings)")
-    batch.add_argument("--every", type=int, metavar="N",
-                       help="full detection every N-th frame (overrides track.every)")
-    batch.add_argument("--track", action="store_true",
-                       help="patch tracking between full detections (sets track.tracking)")
+    add_schedule_options(batch)
     batch.add_argument("--format", choices=FORMATS, help="detections format (default: jsonl)")
     batch.add_argument("--no-video", action="store_true", help="do not write annotated videos")
     batch.add_argument("--no-detections", action="store_true",

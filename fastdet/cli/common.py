@@ -41,6 +41,15 @@ def message_stream(*outputs):
             if os.path.samestat(os.stat(output), os.fstat(sys.stdout.fileno())):
                 return sys.stderr
     return sys.stdout
+def add_schedule_options(parser):
+    """``--every`` and ``--track``: the video options :func:`track_config` applies."""
+    parser.add_argument("--every", type=int, metavar="N",
+                        help="full detection every N-th frame; frames between reuse the last "
+                             "boxes (overrides track.every)")
+    parser.add_argument("--track", action="store_true",
+                        help="patch tracking between full detections (sets track.tracking)")
+
+
 def track_config(args):
     """The ``[track]`` settings of ``--config``, with ``--every`` and ``--track`` applied."""
     from ..errors import InputError

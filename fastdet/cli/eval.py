@@ -15,7 +15,8 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..files.images import read_image
-from .common import add_model_options, compile_notice, make_detector, make_pipeline
+from .common import (add_model_options, add_schedule_options, compile_notice, make_detector,
+                     make_pipeline)
 
 
 def add_eval_parser(subparsers):
@@ -36,10 +37,7 @@ def add_eval_parser(subparsers):
                           help="plain VOC rule: a detection on a difficult box counts only when "
                                "it matches it at --iou (default: also when half of it lies "
                                "inside one)")
-    evaluate.add_argument("--every", type=int, metavar="N",
-                          help="video: full detection every N-th frame (as in fastdet run)")
-    evaluate.add_argument("--track", action="store_true",
-                          help="video: patch tracking between full detections (as in fastdet run)")
+    add_schedule_options(evaluate)   # videos only
     add_model_options(evaluate)
     evaluate.set_defaults(handler=cmd_eval)
     return evaluate

@@ -24,7 +24,8 @@ from ..errors import InputError
 from ..files.atomic import STDOUT, output_in_folder, refuse_overwriting_inputs
 from ..video.detection_files import FORMATS
 from ..video.codecs import ENCODERS
-from .common import compile_notice, make_pipeline, message_stream, track_config
+from .common import (add_schedule_options, compile_notice, make_pipeline, message_stream,
+                     track_config)
 
 
 def add_run_parser(subparsers):
@@ -66,11 +67,7 @@ def add_run_parser(subparsers):
     run.add_argument("--start", type=int, default=0, metavar="F",
                      help="first frame to process (frames count from 0)")
     run.add_argument("--end", type=int, metavar="F", help="stop before frame F")
-    run.add_argument("--every", type=int, metavar="N",
-                     help="full detection every N-th frame; frames between reuse the last boxes "
-                          "(overrides track.every)")
-    run.add_argument("--track", action="store_true",
-                     help="patch tracking between full detections (sets track.tracking)")
+    add_schedule_options(run)
     run.add_argument("--realtime", action="store_true",
                      help="keep up with a live source: when processing falls behind, keep only "
                           "the newest frame (the summary counts the dropped ones); a file is "

@@ -34,7 +34,7 @@ the 2**24 colours (see the xfail test).
 
 import numpy as np
 from llvmlite import ir
-from numba import njit, types, uint64
+from numba import njit, types
 from numba.extending import intrinsic
 
 from ._llvm import load_vector, store_vector

@@ -249,7 +249,7 @@ def _normalise_blocks(norm_code):
     """
 
     def codegen(context, builder, signature, args):
-        i64, f32 = ir.IntType(64), ir.FloatType()
+        f32 = ir.FloatType()
         vector = ir.VectorType(f32, _LANES)
         arrays = {k: context.make_array(signature.args[k])(context, builder, args[k]).data
                   for k in (0, 8, 14, 17)}

@@ -32,6 +32,18 @@ NOTICE = re.compile(r"^(fastdet: compiling kernels|\d+ crops \(|features: |rando
                     r"leak-free split: |cross-validation C=|chosen C=|\d+ combinations on )")
 
 
+class InputFolder:
+    """The files a set of rows reads, made in the folder ``self.dir``."""
+
+    def file(self, name, data):
+        path = self.dir / name
+        path.write_bytes(data)
+        return path
+
+    def __truediv__(self, name):
+        return self.dir / name
+
+
 @dataclass
 class Row:
     """One fault of one verb and the behaviour promised.

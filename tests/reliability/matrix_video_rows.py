@@ -31,7 +31,7 @@ import av
 import cv2
 import numpy as np
 import pytest
-from matrix_checks import Row, fifo_reader, full_disk, read_only_out, s
+from matrix_checks import InputFolder, Row, fifo_reader, full_disk, read_only_out
 
 from fastdet.video.detection_files import read_detections
 from filesystems import private_device, private_stdout
@@ -40,7 +40,7 @@ from video_files import free_port, mpegts_bytes, numbered_frame, write_clip
 CLIP_FRAMES = 10
 
 
-class VideoInputs:
+class VideoInputs(InputFolder):
     """Good and bad videos, and an HTTP server on 127.0.0.1 (a context manager)."""
 
     def __init__(self, folder, data_dir):
@@ -65,14 +65,6 @@ class VideoInputs:
         self._stream = mpegts_bytes(data_dir / "test_video.mp4")
         self._server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), self._handler())
         self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
-
-    def file(self, name, data):
-        path = self.dir / name
-        path.write_bytes(data)
-        return path
-
-    def __truediv__(self, name):
-        return self.dir / name
 
     def url(self, name):
         return f"http://127.0.0.1:{self._server.server_address[1]}/{name}"

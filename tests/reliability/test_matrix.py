@@ -32,8 +32,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from matrix_checks import (TABLE_HEADER, Row, check_row, fifo_reader, full_disk, markdown_table,
-                           read_only_out, s)
+from matrix_checks import (TABLE_HEADER, InputFolder, Row, check_row, fifo_reader, full_disk,
+                           markdown_table, read_only_out, s)
 from matrix_batch_rows import BATCH_ROWS
 from matrix_video_rows import VIDEO_ROWS, VideoInputs
 
@@ -45,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 # -- the inputs every row draws from ---------------------------------------------
-class Inputs:
+class Inputs(InputFolder):
     """Good and bad files of every kind, made once (see :func:`inputs`)."""
 
     def __init__(self, folder, data_dir):
@@ -119,14 +119,6 @@ class Inputs:
         if path is None:
             pytest.skip("needs root to make a device node")
         return path
-
-    def file(self, name, data):
-        path = self.dir / name
-        path.write_bytes(data)
-        return path
-
-    def __truediv__(self, name):
-        return self.dir / name
 
     @staticmethod
     def tampered(bundled):

@@ -15,7 +15,6 @@ import shutil
 import subprocess
 import threading
 
-import pytest
 from video_stubs import BlockDetector
 
 from fastdet.video.pipeline import VideoPipeline
