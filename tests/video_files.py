@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import socket
+import struct
 import threading
 import time
 from fractions import Fraction
@@ -105,3 +106,15 @@ class UdpSender:
     def __exit__(self, *exc):
         self.stop.set()
         self.thread.join(5)
+
+
+def top_level_boxes(path):
+    """The ISO-BMFF boxes at the top of an MP4 file, in order."""
+    data, boxes, offset = path.read_bytes(), [], 0
+    while offset + 8 <= len(data):
+        size, kind = struct.unpack(">I4s", data[offset:offset + 8])
+        if size == 1:
+            size = struct.unpack(">Q", data[offset + 8:offset + 16])[0]
+        boxes.append(kind.decode("latin-1"))
+        offset += size if size else len(data)
+    return boxes

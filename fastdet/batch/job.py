@@ -204,7 +204,8 @@ def process_one(input_path, outputs, options, frame_range=None, warmup_frames=0,
         warmup_seconds = time.perf_counter() - clock
         writer = det_out = tap = None
         if outputs.video is not None:
-            writer = stack.enter_context(VideoSink(outputs.video, reader.fps, reader.size))
+            writer = stack.enter_context(VideoSink(outputs.video, reader.fps, reader.size,
+                                                   options.codec, options.crf, options.preset))
             expected = reader.expected_frames
             middle = 0 if expected is None else max(expected - (start - warm_start), 0) // 2
             tap = _ThumbnailTap(writer, middle)
@@ -253,7 +254,8 @@ def _empty_result(started):
             "end_state": None, "started": started, "finished": time.time()}
 
 
-def render_one(input_path, frame_range, detections_part, ids, outputs, threads=1):
+def render_one(input_path, frame_range, detections_part, ids, outputs, threads=1,
+               encoder=("h264", None, None)):
     """Draw a segment's detections into its part of the annotated video.
 
     Parameters
@@ -269,6 +271,8 @@ def render_one(input_path, frame_range, detections_part, ids, outputs, threads=1
         ``video`` (the part to write) and optionally ``thumbnail``.
     threads : int
         Decoder and encoder threads (the task's share of the worker's cores).
+    encoder : sequence of (str, int or None, str or None)
+        Codec, crf and preset (``BatchSettings.encoder``).
 
     Returns
     -------
@@ -278,8 +282,9 @@ def render_one(input_path, frame_range, detections_part, ids, outputs, threads=1
     start, end = frame_range
     with contextlib.ExitStack() as stack:
         reader = stack.enter_context(VideoSource(input_path, start, end, threads=threads))
+        codec, crf, preset = encoder
         writer = stack.enter_context(VideoSink(outputs.video, reader.fps, reader.size,
-                                               threads=threads))
+                                               codec, crf, preset, threads=threads))
         expected = reader.expected_frames
         tap = _ThumbnailTap(writer, 0 if expected is None else expected // 2)
         frames = iter(reader)

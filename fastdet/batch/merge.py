@@ -3,10 +3,11 @@
 Segments write their detections as JSON lines with their own track ids;
 :func:`merge_detections` renumbers them (:class:`~fastdet.batch.boundary.IdMap`)
 and writes the requested format, and :func:`read_part` gives the renumbered
-boxes to the pass that draws them into the segment's annotated video.  :func:`concatenate_videos` joins the
-segments' annotated videos by copying their compressed packets into one
-container (PyAV), without decoding or re-encoding: every segment starts with
-a key frame because each was encoded on its own.
+boxes to the pass that draws them into the segment's annotated video.
+:func:`concatenate_videos` joins the segments' annotated videos by copying
+their compressed packets into one container (PyAV), without decoding or
+re-encoding: every segment starts with a key frame because each was encoded
+on its own.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from ..detector.detections import Detections
 from ..errors import InputError
 from ..files.atomic import atomic_path
 from ..video.detection_files import DetectionWriter
+from ..video.sink import CONTAINERS, FASTSTART
 
 
 def read_part(path, ids):
@@ -71,8 +73,11 @@ def concatenate_videos(parts, target):
     """
     target = Path(target)
     try:
-        with atomic_path(target) as tmp, av.open(str(tmp), "w",
-                                                 format=_container_format(target)) as out:
+        container = _container_format(target)
+        # Index first (+faststart), like every MP4 VideoSink writes: the page plays it inline.
+        options = {"movflags": "+faststart"} if container in FASTSTART else {}
+        with atomic_path(target) as tmp, av.open(str(tmp), "w", format=container,
+                                                 container_options=options) as out:
             stream = None
             offset = Fraction(0)           # seconds
             for part in parts:
@@ -98,6 +103,4 @@ def concatenate_videos(parts, target):
 
 
 def _container_format(path):
-    # The temporary file's suffix (".part.mp4") hides nothing, but say it anyway.
-    return {".mp4": "mp4", ".m4v": "mp4", ".mov": "mov", ".mkv": "matroska",
-            ".avi": "avi"}.get(Path(path).suffix.lower())
+    return CONTAINERS.get(Path(path).suffix.lower())

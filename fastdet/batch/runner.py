@@ -358,7 +358,7 @@ class _SegmentedVideo:
                "video": str(self._part(k, ".mp4")),
                "thumbnail": (None if k or self.outputs.thumbnail is None
                              else str(self.outputs.thumbnail)),
-               "threads": self.run.settings.threads}
+               "threads": self.run.settings.threads, "encoder": self.run.settings.encoder}
         future = self.run.submit(render_task, job, key=f"{self.video.key}-render{k}")
         self._tags[future.key] = ("render", k)
         return future

@@ -21,7 +21,10 @@ from ..detector.model import DEFAULT_MODEL_NAME, load_model
 from ..errors import InputError
 from ..video.config import TrackConfig, load_track_config
 from ..video.detection_files import FORMATS
+from ..video.sink import check_encoder
 
+#: ``BatchSettings.encoder`` when no --codec, --crf or --preset is given.
+DEFAULT_ENCODER = ["h264", None, None]
 #: Suffix of the detections file per format.
 DETECTION_SUFFIXES = {"jsonl": ".jsonl", "csv": ".csv", "mot": ".txt"}
 
@@ -44,6 +47,12 @@ class BatchSettings:
         ``"jsonl"``, ``"csv"``, ``"mot"``, or ``None`` for no detections file.
     threads : int
         Threads each task's detector scores scales on (Numba and OpenCV).
+    codec : str
+        Codec of the annotated videos (``fastdet run --codec``).
+    crf : int or None
+        Encoder quality, ``None`` for the codec's default.
+    preset : str or None
+        Encoder speed preset, ``None`` for the codec's default.
     """
 
     model_bytes: bytes = field(repr=False)
@@ -53,6 +62,9 @@ class BatchSettings:
     write_video: bool = True
     detections_format: str | None = "jsonl"
     threads: int = 1
+    codec: str = "h264"
+    crf: int | None = None
+    preset: str | None = None
 
     @property
     def config_sha256(self):
@@ -60,8 +72,17 @@ class BatchSettings:
         settings = {"detector": dataclasses.asdict(self.detector_config),
                     "track": dataclasses.asdict(self.track_config),
                     "video": self.write_video, "detections": self.detections_format}
+        if self.write_video and self.encoder != DEFAULT_ENCODER:
+            # Only a non-default encoder joins the hash, so that folders done
+            # before --codec existed are still recognised as done.
+            settings["encoder"] = self.encoder
         text = json.dumps(settings, sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+    @property
+    def encoder(self):
+        """``[codec, crf, preset]`` of the annotated videos."""
+        return [self.codec, self.crf, self.preset]
 
     @property
     def name(self):
@@ -74,7 +95,8 @@ class BatchSettings:
 
 
 def make_settings(model=None, config=None, every=None, track=False, video=True,
-                  detections=True, format=None, threads=1):
+                  detections=True, format=None, threads=1, codec="h264", crf=None,
+                  preset=None):
     """Build and validate :class:`BatchSettings` from ``fastdet run``'s options.
 
     Parameters
@@ -93,6 +115,8 @@ def make_settings(model=None, config=None, every=None, track=False, video=True,
         Detections format, jsonl by default.
     threads : int
         Detector threads per task.
+    codec, crf, preset : str, int, str, optional
+        Encoder of the annotated videos, as ``fastdet run`` takes them.
 
     Raises
     ------
@@ -107,6 +131,10 @@ def make_settings(model=None, config=None, every=None, track=False, video=True,
         raise InputError(f"--every must be at least 1, got {every}")
     if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
         raise InputError(f"--threads must be at least 1, got {threads}")
+    if crf is not None and (isinstance(crf, bool) or not isinstance(crf, int)):
+        raise InputError(f"--crf must be a whole number, got {crf!r}")
+    if video:
+        check_encoder(codec, crf, preset)     # a one-line error here, not on every worker
     if model is None:
         model_bytes = resources.files("fastdet").joinpath("data", DEFAULT_MODEL_NAME).read_bytes()
     else:
@@ -122,4 +150,5 @@ def make_settings(model=None, config=None, every=None, track=False, video=True,
                          detector_config=load_config(config),
                          track_config=track_config, write_video=bool(video),
                          detections_format=(format or "jsonl") if detections else None,
-                         threads=threads)
+                         threads=threads, codec=codec, crf=crf,
+                         preset=None if preset is None else str(preset))

@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 
 from ..video.detection_files import FORMATS
-from .common import add_schedule_options
+from .common import add_encoder_options, add_schedule_options
 
 #: Exit code when the batch ran but some videos failed.
 EXIT_SOME_FAILED = 1
@@ -35,6 +35,7 @@ def add_batch_parser(subparsers):
     batch.add_argument("--no-video", action="store_true", help="do not write annotated videos")
     batch.add_argument("--no-detections", action="store_true",
                        help="do not write detections files")
+    add_encoder_options(batch)
     batch.add_argument("--segment", metavar="N|Ns",
                        help="split videos longer than N frames (or N seconds: 30s) into segments "
                             "processed in parallel")
@@ -65,7 +66,7 @@ def cmd_batch(args):
                     progress=not args.quiet and sys.stderr.isatty(), model=args.model,
                     config=args.config, every=args.every, track=args.track,
                     video=not args.no_video, detections=not args.no_detections,
-                    format=args.format)
+                    format=args.format, codec=args.codec, crf=args.crf, preset=args.preset)
     print(summary_table(run.records, run.skipped, run.wall))
     print(f"{run.workers} workers, set up in {run.setup_seconds:.1f} s; manifest: "
           f"{run.manifest.path}; report: {run.manifest.path.parent / 'index.html'}", flush=True)

@@ -50,6 +50,19 @@ def add_schedule_options(parser):
                         help="patch tracking between full detections (sets track.tracking)")
 
 
+def add_encoder_options(parser):
+    """``--codec``, ``--crf`` and ``--preset``: how the annotated video is encoded."""
+    from ..video.codecs import ENCODERS
+
+    parser.add_argument("--codec", choices=tuple(ENCODERS), default="h264",
+                        help="codec of the annotated video (default h264: plays everywhere)")
+    parser.add_argument("--crf", type=int, metavar="Q",
+                        help="quality, lower is better and bigger (default: h264 23, hevc 28, "
+                             "av1 35, vp9 35; mp4v: quantiser 2-31, default 5)")
+    parser.add_argument("--preset", metavar="P",
+                        help="encoder speed preset (default: h264/hevc ultrafast, av1 12, vp9 8)")
+
+
 def track_config(args):
     """The ``[track]`` settings of ``--config``, with ``--every`` and ``--track`` applied."""
     from ..errors import InputError

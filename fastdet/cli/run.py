@@ -23,9 +23,8 @@ from urllib.parse import unquote, urlparse
 from ..errors import InputError
 from ..files.atomic import STDOUT, output_in_folder, refuse_overwriting_inputs
 from ..video.detection_files import FORMATS
-from ..video.codecs import ENCODERS
-from .common import (add_schedule_options, compile_notice, make_pipeline, message_stream,
-                     track_config)
+from .common import (add_encoder_options, add_schedule_options, compile_notice, make_pipeline,
+                     message_stream, track_config)
 
 
 def add_run_parser(subparsers):
@@ -50,13 +49,7 @@ def add_run_parser(subparsers):
     run.add_argument("--detections", metavar="FILE", help="detections file ('-': stdout)")
     run.add_argument("--format", choices=FORMATS,
                      help="detections format (default: from FILE's suffix, else jsonl)")
-    run.add_argument("--codec", choices=tuple(ENCODERS), default="h264",
-                     help="codec of the annotated video (default h264: plays everywhere)")
-    run.add_argument("--crf", type=int, metavar="Q",
-                     help="quality, lower is better and bigger (default: h264 23, hevc 28, "
-                          "av1 35, vp9 35; mp4v: quantiser 2-31, default 5)")
-    run.add_argument("--preset", metavar="P",
-                     help="encoder speed preset (default: h264/hevc ultrafast, av1 12, vp9 8)")
+    add_encoder_options(run)
     run.add_argument("--model", metavar="M", help="model file (.npz); default: bundled model")
     run.add_argument("--config", metavar="C",
                      help="TOML config overriding built-in defaults ([track] for video settings)")

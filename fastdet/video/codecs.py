@@ -11,3 +11,9 @@ ENCODERS = {"h264": "libx264", "hevc": "libx265", "av1": "libsvtav1", "vp9": "li
 #: chosen to keep up with detection on a 1280x720 stream (see README, "Video").
 DEFAULT_CRF = {"h264": 23, "hevc": 28, "av1": 35, "vp9": 35, "mp4v": 5}
 DEFAULT_PRESET = {"h264": "ultrafast", "hevc": "ultrafast", "av1": "12", "vp9": "8"}
+#: The encoders' own crf ranges (x264/x265 0-51; SVT-AV1 and libvpx 0-63; mp4v's quantiser 2-31).
+CRF_RANGE = {"h264": (0, 51), "hevc": (0, 51), "av1": (0, 63), "vp9": (0, 63), "mp4v": (2, 31)}
+#: x264's and x265's preset names (shared): checked here because x264 prints its own
+#: complaint about an unknown one straight to stderr, past FFmpeg's logging.
+NAMED_PRESETS = {codec: ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow",
+                         "slower", "veryslow", "placebo") for codec in ("h264", "hevc")}

@@ -38,7 +38,7 @@ from av.video.reformatter import VideoReformatter
 
 from ..errors import InputError
 from ..files.atomic import StagedFile
-from .codecs import DEFAULT_CRF, DEFAULT_PRESET, ENCODERS
+from .codecs import CRF_RANGE, DEFAULT_CRF, DEFAULT_PRESET, ENCODERS, NAMED_PRESETS
 from .frame_arrays import plane_view
 
 #: Containers by suffix; MP4 and QuickTime files get their index first.
@@ -66,21 +66,27 @@ def codec_options(codec, crf=None, preset=None, threads=1):
     Raises
     ------
     InputError
-        For an unknown codec, one the installed FFmpeg lacks, or a preset
-        given to mp4v (which has none).
+        For an unknown codec, one the installed FFmpeg lacks, a crf outside
+        the encoder's range, an unknown x264/x265 preset, or a preset given
+        to mp4v (which has none).
     """
     if codec not in ENCODERS:
         raise InputError(f"unknown codec {codec!r} (choose from {', '.join(available_codecs())})")
     if ENCODERS[codec] not in av.codecs_available:
         raise InputError(f"this FFmpeg cannot encode {codec} ({ENCODERS[codec]} is missing)")
     crf = DEFAULT_CRF[codec] if crf is None else crf
+    low, high = CRF_RANGE[codec]
+    if not low <= crf <= high:
+        # x264 would clamp silently; say so instead.
+        raise InputError(f"{codec} quality (--crf) must be {low}-{high}, got {crf}")
     if codec == "mp4v":
         if preset is not None:
             raise InputError("--preset does not apply to mp4v")
-        if not 2 <= crf <= 31:
-            raise InputError(f"mp4v quality (--crf) must be 2-31, got {crf}")
         return {"qmin": str(crf), "qmax": str(crf)}
     preset = DEFAULT_PRESET[codec] if preset is None else str(preset)
+    if codec in NAMED_PRESETS and preset not in NAMED_PRESETS[codec]:
+        raise InputError(f"{codec} has no preset {preset!r} (choose from "
+                         f"{', '.join(NAMED_PRESETS[codec])})")
     if codec == "vp9":
         return {"crf": str(crf), "b": "0", "deadline": "realtime", "cpu-used": preset,
                 "row-mt": "1"}
@@ -88,6 +94,38 @@ def codec_options(codec, crf=None, preset=None, threads=1):
     if codec == "hevc":
         options["x265-params"] = f"log-level=error:pools={threads}:frame-threads={threads}"
     return options
+
+
+def check_encoder(codec, crf=None, preset=None):
+    """Open ``codec`` with these options on a tiny picture, to refuse bad ones before any work.
+
+    A batch calls this once on the client, so that a preset the encoder does
+    not know fails the command with one line instead of every video on
+    every worker.
+
+    Raises
+    ------
+    InputError
+        When :func:`codec_options` refuses the options or the encoder does.
+    """
+    options = codec_options(codec, crf, preset)
+    if codec == "av1":
+        os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its banner to stderr
+    context = av.CodecContext.create(ENCODERS[codec], "w")
+    context.width = context.height = 64
+    context.pix_fmt = "yuv420p"
+    context.time_base = Fraction(1, 25)
+    context.options = options
+    try:
+        context.open()
+    except av.error.FFmpegError:
+        raise InputError(_refusal(codec, crf, preset)) from None
+
+
+def _refusal(codec, crf, preset):
+    crf = DEFAULT_CRF[codec] if crf is None else crf
+    preset = DEFAULT_PRESET.get(codec) if preset is None else preset
+    return f"the {codec} encoder refuses --preset {preset} --crf {crf}"
 
 
 def available_codecs():
@@ -175,6 +213,7 @@ class VideoSink(StagedFile):
                              "streamed to a file that is not a regular one (use .mp4, .mkv "
                              "or .ts)")
         self.codec = codec
+        self._crf, self._preset = crf, preset
         self.size = (int(size[0]), int(size[1]))
         self.rate = Fraction(fps).limit_denominator(1001000)
         self.time_base = Fraction(time_base) if time_base is not None else 1 / self.rate
@@ -215,7 +254,10 @@ class VideoSink(StagedFile):
         context.thread_count = threads
         (context.colorspace, context.color_range, context.color_primaries,
          context.color_trc) = tags
-        context.open()  # fail now, before any frame, on a bad size or option
+        try:
+            context.open()  # fail now, before any frame, on a bad size or option
+        except av.error.FFmpegError:
+            raise ValueError(_refusal(self.codec, self._crf, self._preset)) from None
         if context.options:
             # FFmpeg leaves the options it did not understand here, silently otherwise.
             raise ValueError(f"the encoder ignores {', '.join(sorted(context.options))}")

@@ -20,7 +20,9 @@ from pathlib import Path
 
 import pytest
 from batch_stubs import looped_clip
+from chromium import Browser, executable
 from distributed import Client, LocalCluster
+from video_files import top_level_boxes
 
 import fastdet
 from fastdet.batch import run_batch
@@ -130,6 +132,38 @@ def test_a_segmented_long_video_equals_the_whole_video(client, clips, loop_whole
     assert record["status"] == "done" and record["segments"] == 2 and record["frames"] == 300
     assert filecmp.cmp(tmp_path / "loop300.jsonl", loop_whole, shallow=False)
     assert not (tmp_path / ".fastdet-parts").exists()
+
+
+def test_segments_are_encoded_with_the_codec_asked_for_and_joined_index_first(client, clips,
+                                                                             tmp_path):
+    """--codec reaches every segment's encoder; the joined MP4 has its index first."""
+    import av
+
+    [record] = fastdet.batch(clips["loop"], tmp_path, client, segment="150", codec="mp4v",
+                             crf=3)
+    assert record["status"] == "done" and record["segments"] == 2
+    joined = tmp_path / "loop300.mp4"
+    with av.open(str(joined)) as video:
+        assert video.streams.video[0].codec_context.name == "mpeg4"
+        assert sum(1 for _ in video.decode(video=0)) == 300
+    boxes = top_level_boxes(joined)
+    assert boxes.index("moov") < boxes.index("mdat")
+
+
+def test_a_real_batch_page_plays_every_video_in_chromium(client, clips, tmp_path):
+    """End to end: the page of a batch plays its own outputs inline, a whole video and a
+    segmented one whose parts were joined."""
+    assert executable(), "Chromium is missing: apt-get install chromium (.ci/run does)"
+    records = fastdet.batch([clips["video"], clips["loop"]], tmp_path, client, segment="150")
+    assert [(r["status"], r["segments"]) for r in records] == [("done", 1), ("done", 2)]
+    with Browser() as browser:
+        browser.open((tmp_path / "index.html").as_uri())
+        assert browser.evaluate("document.querySelectorAll('video').length") == 2
+        for k in range(2):
+            video = f"document.querySelectorAll('video')[{k}]"
+            browser.evaluate(f"{video}.scrollIntoView()")
+            assert browser.wait_for(f"{video}.currentTime > 0.2"), f"video {k} does not play"
+            assert browser.evaluate(f"{video}.error === null")
 
 
 @pytest.mark.slow

@@ -116,6 +116,20 @@ def test_settings_are_checked_and_hashed(tmp_path):
     assert make_settings(every=5).config_sha256 != base.config_sha256
     assert make_settings(format="csv").config_sha256 != base.config_sha256
     assert make_settings(threads=2).config_sha256 == base.config_sha256   # same outputs
+    mp4v = make_settings(codec="mp4v", crf=4)
+    assert mp4v.encoder == ["mp4v", 4, None] and mp4v.config_sha256 != base.config_sha256
+    assert make_settings(crf=30).config_sha256 != base.config_sha256
+    assert make_settings(codec="h264").config_sha256 == base.config_sha256
+    # Without a video the encoder decides nothing, so it is neither hashed nor checked.
+    assert (make_settings(video=False, codec="mp4v", preset="fast").config_sha256
+            == make_settings(video=False).config_sha256)
+    for options, message in (({"preset": "warp-speed"}, "h264 has no preset 'warp-speed'"),
+                             ({"codec": "vp9", "preset": "99"}, "the vp9 encoder refuses"),
+                             ({"crf": 52}, "must be 0-51"),
+                             ({"codec": "mp4v", "preset": "fast"}, "does not apply to mp4v"),
+                             ({"crf": "high"}, "--crf must be a whole number")):
+        with pytest.raises(InputError, match=message):
+            make_settings(**options)
     assert len(base.model_sha256) == 64 and base.model_bytes[:2] == b"PK"
     with pytest.raises(InputError, match="nothing to write"):
         make_settings(video=False, detections=False)

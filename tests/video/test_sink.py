@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import struct
 from fractions import Fraction
 
 import av
@@ -12,23 +11,11 @@ import pytest
 from fastdet.errors import InputError
 from fastdet.video.sink import VideoSink, available_codecs, pad_to_even
 from fastdet.video.source import VideoSource
-from video_files import SIZE, frame_number, numbered_frame, write_clip
+from video_files import SIZE, frame_number, numbered_frame, top_level_boxes, write_clip
 
 
 def leftovers(folder):
     return sorted(p.name for p in folder.iterdir() if ".part" in p.name)
-
-
-def top_level_boxes(path):
-    """The ISO-BMFF boxes at the top of an MP4 file, in order."""
-    data, boxes, offset = path.read_bytes(), [], 0
-    while offset + 8 <= len(data):
-        size, kind = struct.unpack(">I4s", data[offset:offset + 8])
-        if size == 1:
-            size = struct.unpack(">Q", data[offset + 8:offset + 16])[0]
-        boxes.append(kind.decode("latin-1"))
-        offset += size if size else len(data)
-    return boxes
 
 
 def read_back(path):
@@ -152,7 +139,10 @@ def test_h264_is_available():
     ({"codec": "theora"}, "unknown codec 'theora'"),
     ({"codec": "mp4v", "preset": "fast"}, "--preset does not apply to mp4v"),
     ({"codec": "mp4v", "crf": 40}, "must be 2-31"),
-    ({"preset": "warp-speed"}, "cannot write a h264 video"),
+    ({"preset": "warp-speed"}, "h264 has no preset 'warp-speed' \\(choose from ultrafast,"),
+    ({"codec": "vp9", "preset": "99"}, "the vp9 encoder refuses --preset 99 --crf 35"),
+    ({"crf": 60}, "h264 quality \\(--crf\\) must be 0-51, got 60"),
+    ({"codec": "vp9", "crf": -1}, "must be 0-63"),
 ])
 def test_bad_encoder_settings_are_one_line_errors(tmp_path, options, message):
     with pytest.raises(InputError, match=message):
