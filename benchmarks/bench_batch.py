@@ -63,7 +63,7 @@ def _cluster(workers, threads=1):
     """A local cluster of ``workers`` single-task processes, as ``fastdet batch`` starts it."""
     from distributed import Client, LocalCluster
 
-    env = {"NUMBA_NUM_THREADS": str(threads), "OPENCV_FFMPEG_THREADS": str(threads)}
+    env = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": "1"}
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                       host="127.0.0.1", dashboard_address="127.0.0.1:0", env=env) as cluster, \
             Client(cluster) as client:

@@ -25,6 +25,7 @@ from ..errors import InputError
 from ..files.images import write_image
 from ..kernels.reduce import smallest_positive
 from ..video.detection_files import DetectionWriter
+from ..video.frame_arrays import FrameConverter
 from ..video.pipeline import VideoPipeline
 from ..video.sink import VideoSink
 from ..video.source import VideoSource
@@ -58,11 +59,13 @@ class _HeatWatch:
 
 
 class _Frames:
-    """The reader's frames, numbered, with the frames at ``guards`` always decoded and digested.
+    """The reader's frames, numbered, converted only as far as the pipeline looks at them.
 
-    Frames the pipeline does not look at are decoded but not converted,
-    except the last frame before each boundary, whose digest the boundary
-    check compares.
+    Frames the pipeline does not look at are decoded but not converted
+    (``None``); the others are converted whole when the video is drawn, else
+    only the rows the detector searches (:meth:`VideoPipeline.rows_read`).
+    The frames at ``guards``, the last before each boundary, are always
+    converted whole: the boundary check compares their digests.
     """
 
     def __init__(self, reader, pipeline, convert_all, guards):
@@ -70,20 +73,25 @@ class _Frames:
         self.digests = {}
         self._pipeline = pipeline
         self._guards = guards
-        self._frames = reader.frames(skip=None if convert_all else self._skip)
-
-    def _skip(self):
-        return not self._pipeline.wants_frame and self.index not in self._guards
+        self._convert_all = convert_all
+        self._rows = None if convert_all else pipeline.rows_read(reader.size)
+        self._converter = FrameConverter()
+        self._frames = reader.decoded_frames()
 
     def __iter__(self):
         return self
 
     def __next__(self):
         frame = next(self._frames)
-        if self.index in self._guards and frame is not None:
-            self.digests[self.index] = frame_digest(frame)
+        index = self.index
         self.index += 1
-        return frame
+        if index in self._guards:
+            bgr = self._converter.to_bgr(frame)
+            self.digests[index] = frame_digest(bgr)
+            return bgr
+        if self._convert_all or self._pipeline.wants_frame:
+            return self._converter.to_bgr(frame, self._rows)
+        return None
 
     def last(self):
         """``(index, digest)`` of the last frame read (digest ``None`` unless guarded)."""

@@ -175,9 +175,17 @@ class BatchRun:
         self.client.cancel([self._futures.pop(key)[0] for key in stale])
 
     def submit(self, function, *args, key):
-        """Submit a task with a readable, unique key."""
-        return self.client.submit(function, *args, key=f"{key}-{uuid.uuid4().hex[:8]}",
-                                  pure=False, retries=RETRIES)
+        """Submit a task with a unique key that names its kind first, then its video.
+
+        Dask groups tasks by their key's prefix (``video_task``, ``render_task``, ...):
+        one group per kind lets the scheduler learn how long such a task takes
+        and spread them over the workers, where a group per video (an unknown
+        half-second guess each) left one worker with two videos in a row while
+        another idled.
+        """
+        return self.client.submit(
+            function, *args, key=f"{function.__name__}-{uuid.uuid4().hex[:8]}-{key}",
+            pure=False, retries=RETRIES)
 
     def record(self, job, tasks, **values):
         """The manifest record of a finished video (``tasks``: the results of its tasks)."""

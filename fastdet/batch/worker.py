@@ -2,9 +2,10 @@
 
 :class:`BatchSetup` is registered once per batch (named after the model's
 and the configuration's hashes) and set up once per worker process: it
-loads the model from the bytes it carries and runs the pipeline on a noise
-frame, which loads the compiled kernels from Numba's
-cache (or compiles them once, on a machine whose cache is empty).  Tasks then only
+sets the allocator up for frames (:mod:`fastdet.batch.memory`), loads the
+model from the bytes it carries and runs the pipeline on a noise frame,
+which loads the compiled kernels from Numba's cache (or compiles them once,
+on a machine whose cache is empty).  Tasks then only
 carry paths and the plugin's name; each task thread builds its
 :class:`~fastdet.Detector` on the shared model once.
 
@@ -30,6 +31,7 @@ from ..detector.model import load_model
 from ..errors import FastdetError
 from .boundary import IdMap
 from .job import process_one, render_one, warm_up
+from .memory import reuse_freed_frames
 from .merge import concatenate_videos, merge_detections
 from .outputs import OutputPaths
 
@@ -70,6 +72,7 @@ class BatchSetup(WorkerPlugin):
         if self.model is not None:
             return
         start = time.perf_counter()
+        reuse_freed_frames()
         with tempfile.TemporaryDirectory(prefix="fastdet-model-") as folder:
             path = Path(folder) / "model.npz"
             path.write_bytes(self.settings.model_bytes)

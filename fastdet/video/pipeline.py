@@ -175,6 +175,21 @@ class VideoPipeline:
         """
         return self.config.tracking or self._search_due()
 
+    def rows_read(self, size):
+        """``(y0, y1)``: the only rows of a ``size`` frame that :meth:`process` reads, or ``None``.
+
+        Without tracking, the pipeline looks at nothing outside the detector's
+        search band, so a caller may convert only those rows of a decoded
+        frame (:class:`~fastdet.video.frame_arrays.FrameConverter`).
+        ``None`` when it reads whole frames (tracking, or a detector without
+        scale plans).
+        """
+        plans = getattr(self.detector, "plans", None)
+        if self.config.tracking or plans is None:
+            return None
+        band = search_band(plans(size))
+        return None if band is None else (band[1], band[3])
+
     def _search_due(self):
         # The periodic schedule only; tracking adds its triggers on top.
         period = self.config.search_period

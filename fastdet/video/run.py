@@ -20,7 +20,6 @@ import numba
 
 from ..detector.config import DetectorConfig, load_config
 from ..detector.detector import Detector
-from ..detector.plan import search_band
 from ..errors import InputError
 from .config import TrackConfig, load_track_config
 from .detection_files import DetectionWriter
@@ -283,10 +282,7 @@ def process_video(source, target=None, detector=None, config=None, callback=None
                 video = stack.enter_context(VideoSource(source, first, end, timeout=timeout,
                                                         threads=plan.decoder, strict=strict))
             first_output = max(int(start), video.start)
-            rows = None
-            if not pipeline.config.tracking and hasattr(pipeline.detector, "plans"):
-                band = search_band(pipeline.detector.plans(video.size))
-                rows = None if band is None else (band[1], band[3])
+            rows = pipeline.rows_read(video.size)
             sink = writer = None
             with guard.deferred():
                 if target is not None:
