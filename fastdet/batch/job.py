@@ -31,6 +31,7 @@ from ..video.sink import VideoSink
 from ..video.source import VideoSource
 from ..viz.draw import draw_detections_inplace
 from .merge import read_part
+from .settings import DEFAULT_ENCODER
 from .state import frame_digest, pipeline_state, reorder_tracks
 
 #: Width of the thumbnails on the report page.
@@ -263,7 +264,7 @@ def _empty_result(started):
 
 
 def render_one(input_path, frame_range, detections_part, ids, outputs, threads=1,
-               encoder=("h264", None, None)):
+               encoder=DEFAULT_ENCODER):
     """Draw a segment's detections into its part of the annotated video.
 
     Parameters

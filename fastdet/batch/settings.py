@@ -19,12 +19,13 @@ from pathlib import Path
 from ..detector.config import DetectorConfig, load_config
 from ..detector.model import DEFAULT_MODEL_NAME, load_model
 from ..errors import InputError
+from ..video.codecs import DEFAULT_CRF, DEFAULT_PRESET
 from ..video.config import TrackConfig, load_track_config
 from ..video.detection_files import FORMATS
 from ..video.sink import check_encoder
 
 #: ``BatchSettings.encoder`` when no --codec, --crf or --preset is given.
-DEFAULT_ENCODER = ["h264", None, None]
+DEFAULT_ENCODER = ("h264", None, None)
 #: Suffix of the detections file per format.
 DETECTION_SUFFIXES = {"jsonl": ".jsonl", "csv": ".csv", "mot": ".txt"}
 
@@ -81,8 +82,8 @@ class BatchSettings:
 
     @property
     def encoder(self):
-        """``[codec, crf, preset]`` of the annotated videos."""
-        return [self.codec, self.crf, self.preset]
+        """``(codec, crf, preset)`` of the annotated videos."""
+        return (self.codec, self.crf, self.preset)
 
     @property
     def name(self):
@@ -150,5 +151,8 @@ def make_settings(model=None, config=None, every=None, track=False, video=True,
                          detector_config=load_config(config),
                          track_config=track_config, write_video=bool(video),
                          detections_format=(format or "jsonl") if detections else None,
-                         threads=threads, codec=codec, crf=crf,
-                         preset=None if preset is None else str(preset))
+                         threads=threads, codec=codec,
+                         # A default given explicitly is the default: same outputs, same hash.
+                         crf=None if crf == DEFAULT_CRF.get(codec) else crf,
+                         preset=(None if preset is None or str(preset) == DEFAULT_PRESET.get(codec)
+                                 else str(preset)))

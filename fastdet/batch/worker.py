@@ -137,8 +137,8 @@ def render_task(job):
                                      "thumbnail": job["thumbnail"]})
     try:
         frames = render_one(job["input"], job["frame_range"], Path(job["detections"]),
-                            IdMap.from_dict(job["ids"]), outputs, job.get("threads", 1),
-                            job.get("encoder", ("h264", None, None)))
+                            IdMap.from_dict(job["ids"]), outputs, job["threads"],
+                            job["encoder"])
         result = {"status": "done", "frames": frames}
     except (FastdetError, OSError) as exc:
         result = _failed(exc)

@@ -257,7 +257,8 @@ class VideoSink(StagedFile):
         try:
             context.open()  # fail now, before any frame, on a bad size or option
         except av.error.FFmpegError:
-            raise ValueError(_refusal(self.codec, self._crf, self._preset)) from None
+            raise ValueError(f"{_refusal(self.codec, self._crf, self._preset)} at "
+                             f"{stream.width}x{stream.height}") from None
         if context.options:
             # FFmpeg leaves the options it did not understand here, silently otherwise.
             raise ValueError(f"the encoder ignores {', '.join(sorted(context.options))}")

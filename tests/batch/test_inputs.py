@@ -117,9 +117,10 @@ def test_settings_are_checked_and_hashed(tmp_path):
     assert make_settings(format="csv").config_sha256 != base.config_sha256
     assert make_settings(threads=2).config_sha256 == base.config_sha256   # same outputs
     mp4v = make_settings(codec="mp4v", crf=4)
-    assert mp4v.encoder == ["mp4v", 4, None] and mp4v.config_sha256 != base.config_sha256
+    assert mp4v.encoder == ("mp4v", 4, None) and mp4v.config_sha256 != base.config_sha256
     assert make_settings(crf=30).config_sha256 != base.config_sha256
     assert make_settings(codec="h264").config_sha256 == base.config_sha256
+    assert make_settings(crf=23, preset="ultrafast").config_sha256 == base.config_sha256
     # Without a video the encoder decides nothing, so it is neither hashed nor checked.
     assert (make_settings(video=False, codec="mp4v", preset="fast").config_sha256
             == make_settings(video=False).config_sha256)
