@@ -15,13 +15,14 @@ exact, how ids continue), :mod:`.merge` (segments joined), :mod:`.worker`
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 import types
 from pathlib import Path
 
 from ..files.atomic import output_folder
-from .cluster import batch_client
+from .cluster import batch_client, local_layout
 from .inputs import find_videos
 from .report import write_report
 from .runner import BatchRun
@@ -31,7 +32,8 @@ __all__ = ["batch", "run_batch"]
 
 
 def run_batch(inputs, out_dir, client=None, *, scheduler=None, scheduler_file=None, workers=None,
-              threads=1, segment=None, force=False, warmup=None, progress=False, **run_options):
+              threads=None, segment=None, force=False, warmup=None, progress=False,
+              **run_options):
     """Run a batch and return its :class:`~fastdet.batch.runner.BatchRun` (what the CLI reports).
 
     See :func:`batch` for the parameters.  The run's ``wall`` attribute holds
@@ -40,11 +42,15 @@ def run_batch(inputs, out_dir, client=None, *, scheduler=None, scheduler_file=No
     start = time.perf_counter()
     if isinstance(inputs, (str, Path)):
         inputs = [inputs]
-    settings = make_settings(threads=threads, **run_options)
+    settings = make_settings(threads=1 if threads is None else threads, **run_options)
     out_dir = Path(out_dir)
     videos = find_videos(inputs, exclude=out_dir)
     output_folder(out_dir)
-    with batch_client(out_dir, client, scheduler, scheduler_file, workers, threads) as dask:
+    if client is None and scheduler is None and scheduler_file is None:
+        workers, threads = local_layout(len(videos), workers, threads, segment is not None)
+        settings = dataclasses.replace(settings, threads=threads)
+    with batch_client(out_dir, client, scheduler, scheduler_file, workers,
+                      settings.threads) as dask:
         run = BatchRun(dask, settings, out_dir, force=force, segment=segment, warmup=warmup)
         try:
             run.run(videos, progress=progress)
@@ -70,8 +76,11 @@ def batch(inputs, out_dir, client=None, **run_options):
     **run_options
         ``model``, ``config``, ``every``, ``track``, ``video`` (write the
         annotated videos, default True), ``detections`` (default True),
-        ``format`` ('jsonl', 'csv', 'mot'), ``threads`` (detector threads per
-        task, default 1), ``workers`` (local cluster size), ``scheduler`` /
+        ``format`` ('jsonl', 'csv', 'mot'), ``codec``, ``crf``, ``preset``
+        (the annotated videos' encoder, as ``fastdet run`` takes them),
+        ``threads`` (decoder and detector threads per task; default 1, or on
+        a local cluster with fewer videos than cores the cores shared among
+        them), ``workers`` (local cluster size), ``scheduler`` /
         ``scheduler_file`` (a running cluster instead of ``client``),
         ``segment`` (frames ``"500"`` or seconds ``"30s"`` per segment of a
         long video), ``warmup`` (frames before each segment; default from the

@@ -68,6 +68,46 @@ def plan_layout(cores=None, threads=1, memory=None):
     return max(1, min(cores // max(threads, 1), memory // WORKER_MEMORY))
 
 
+def local_layout(video_count, workers=None, threads=None, segmenting=False, cores=None,
+                 memory=None):
+    """Worker processes and threads per task of a local cluster for ``video_count`` videos.
+
+    Without ``threads``, a task gets one thread and the videos run side by
+    side, one per worker; with fewer videos than cores (and no segments,
+    which split long videos into more tasks) the cores are shared out among
+    the videos instead, so that one video alone still uses every core.
+
+    Parameters
+    ----------
+    video_count : int
+    workers, threads : int, optional
+        Asked for (``--workers``, ``--threads``); ``threads`` defaults to the
+        cores per worker when only ``workers`` is given.
+    segmenting : bool
+        Whether long videos are split (``--segment``).
+    cores, memory : int, optional
+        Default: the machine's (:func:`usable_cores`, ``psutil``).
+
+    Returns
+    -------
+    tuple of int
+        ``(workers, threads)``.
+    """
+    _check_worker_count(workers)
+    cores = usable_cores() if cores is None else cores
+    if threads is None:
+        if workers is not None:
+            threads = max(1, cores // workers)
+        elif segmenting or video_count >= cores:
+            threads = 1
+        else:
+            threads = max(1, cores // max(video_count, 1))
+            workers = max(1, min(video_count, plan_layout(cores, threads, memory)))
+    if workers is None:
+        workers = plan_layout(cores, threads, memory)
+    return workers, threads
+
+
 @contextlib.contextmanager
 def batch_client(out_dir, client=None, scheduler=None, scheduler_file=None, workers=None,
                  threads=1):
@@ -107,9 +147,7 @@ def batch_client(out_dir, client=None, scheduler=None, scheduler_file=None, work
 
 @contextlib.contextmanager
 def _local_client(workers, threads):
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
-                                or workers < 1):
-        raise InputError(f"--workers must be at least 1, got {workers}")
+    _check_worker_count(workers)
     environment = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": "1"}
     with LocalCluster(n_workers=workers or plan_layout(threads=threads), threads_per_worker=1,
                       processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0",
@@ -117,6 +155,12 @@ def _local_client(workers, threads):
             Client(cluster) as client:
         client.register_plugin(_IgnoreInterrupts(), name="fastdet-ignore-interrupts")
         yield client
+
+
+def _check_worker_count(workers):
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
+                                or workers < 1):
+        raise InputError(f"--workers must be at least 1, got {workers}")
 
 
 class _IgnoreInterrupts(WorkerPlugin):

@@ -214,7 +214,8 @@ def process_one(input_path, outputs, options, frame_range=None, warmup_frames=0,
         writer = det_out = tap = None
         if outputs.video is not None:
             writer = stack.enter_context(VideoSink(outputs.video, reader.fps, reader.size,
-                                                   options.codec, options.crf, options.preset))
+                                                   options.codec, options.crf, options.preset,
+                                                   threads=options.threads))
             expected = reader.expected_frames
             middle = 0 if expected is None else max(expected - (start - warm_start), 0) // 2
             tap = _ThumbnailTap(writer, middle)

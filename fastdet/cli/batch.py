@@ -46,8 +46,10 @@ def add_batch_parser(subparsers):
                        help="the file `dask scheduler --scheduler-file FILE` wrote")
     batch.add_argument("--workers", type=int, metavar="W",
                        help="worker processes of the local cluster (default: cores / threads)")
-    batch.add_argument("--threads", type=int, default=1, metavar="T",
-                       help="detector threads per video (default 1: videos in parallel instead)")
+    batch.add_argument("--threads", type=int, metavar="T",
+                       help="decoder and detector threads per video (default 1: videos in "
+                            "parallel; on a local cluster with fewer videos than cores, the "
+                            "cores shared among them)")
     batch.add_argument("--force", action="store_true",
                        help="redo videos the manifest lists as done")
     batch.add_argument("--quiet", "-q", action="store_true", help="no progress bars")

@@ -27,6 +27,7 @@ from video_files import top_level_boxes
 import fastdet
 from fastdet.batch import run_batch
 from fastdet.cli.app import main
+from fastdet.errors import InputError
 
 #: Seconds any cluster, subprocess or batch in this module may take.
 LIMIT = 240
@@ -335,9 +336,38 @@ class _Workers:
         return self.reports
 
 
+def test_fewer_videos_than_cores_share_the_cores():
+    from fastdet.batch.cluster import WORKER_MEMORY, local_layout
+
+    plenty = 64 * WORKER_MEMORY
+    assert local_layout(1, cores=2, memory=plenty) == (1, 2)
+    assert local_layout(3, cores=8, memory=plenty) == (3, 2)
+    assert local_layout(2, cores=2, memory=plenty) == (2, 1)
+    assert local_layout(9, cores=8, memory=plenty) == (8, 1)
+    assert local_layout(1, segmenting=True, cores=2, memory=plenty) == (2, 1)
+    assert local_layout(1, threads=1, cores=4, memory=plenty) == (4, 1)   # as asked
+    assert local_layout(5, workers=2, cores=4, memory=plenty) == (2, 2)
+    assert local_layout(1, cores=8, memory=WORKER_MEMORY) == (1, 8)
+    with pytest.raises(InputError, match="--workers must be at least 1"):
+        local_layout(1, workers=0)
+
+
+def test_one_video_alone_on_the_local_cluster_uses_every_core(client, clips, tmp_path):
+    """The cluster fastdet starts gives a lone video all the cores; its detections are those
+    of a one-thread task."""
+    from fastdet.batch.cluster import usable_cores
+
+    run = run_batch(clips["video"], tmp_path / "alone", video=False)
+    assert run.workers == 1 and run.settings.threads == usable_cores()
+    assert [r["status"] for r in run.records] == ["done"]
+    [one] = fastdet.batch(clips["video"], tmp_path / "one-thread", client, video=False)
+    assert one["status"] == "done"
+    assert filecmp.cmp(tmp_path / "alone" / "test_video.jsonl",
+                       tmp_path / "one-thread" / "test_video.jsonl", shallow=False)
+
+
 def test_workers_that_cannot_run_the_batch_are_named(tmp_path):
     from fastdet.batch.cluster import check_workers
-    from fastdet.errors import InputError
 
     good = {"version": fastdet.__version__, "sees_out_dir": True}
     check_workers(_Workers({"tcp://10.0.0.1:1": good}), tmp_path)
