@@ -3,7 +3,8 @@
 Without a scheduler, :func:`batch_client` starts a ``distributed.LocalCluster``
 of worker *processes* (the pipeline's Python parts hold the GIL, so processes,
 not threads, scale it), :func:`plan_layout` workers of one task thread each,
-and closes it at the end.  Each task's detector scores on ``threads`` threads
+and closes it at the end; :func:`local_layout` gives each task more threads
+when there are fewer videos than cores.  Each task's detector scores on ``threads`` threads
 (Numba and OpenCV) and decodes with as many FFmpeg threads, so that
 ``workers x threads`` fills the cores without oversubscribing them; the
 background video encoder of each task is one more thread, which overlaps the
