@@ -152,7 +152,10 @@ def _local_client(workers, threads):
     environment = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": "1"}
     with LocalCluster(n_workers=workers or plan_layout(threads=threads), threads_per_worker=1,
                       processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0",
-                      silence_logs=logging.ERROR, env=environment) as cluster, \
+                      # Dask's own error reports are tracebacks (a worker's heartbeat
+                      # failing while Ctrl-C closes the cluster); a batch reports each
+                      # failure in one line instead.
+                      silence_logs=logging.CRITICAL, env=environment) as cluster, \
             Client(cluster) as client:
         client.register_plugin(_IgnoreInterrupts(), name="fastdet-ignore-interrupts")
         yield client
