@@ -41,6 +41,8 @@ def message_stream(*outputs):
             if os.path.samestat(os.stat(output), os.fstat(sys.stdout.fileno())):
                 return sys.stderr
     return sys.stdout
+
+
 def add_schedule_options(parser):
     """``--every`` and ``--track``: the video options :func:`track_config` applies."""
     parser.add_argument("--every", type=int, metavar="N",
@@ -52,15 +54,18 @@ def add_schedule_options(parser):
 
 def add_encoder_options(parser):
     """``--codec``, ``--crf`` and ``--preset``: how the annotated video is encoded."""
-    from ..video.codecs import ENCODERS
+    from ..video.codecs import CRF_RANGE, DEFAULT_CRF, DEFAULT_PRESET, ENCODERS
 
+    crfs = ", ".join(f"{codec} {crf}" for codec, crf in DEFAULT_CRF.items() if codec != "mp4v")
+    presets = ", ".join(f"{codec} {preset}" for codec, preset in DEFAULT_PRESET.items())
     parser.add_argument("--codec", choices=tuple(ENCODERS), default="h264",
                         help="codec of the annotated video (default h264: plays everywhere)")
     parser.add_argument("--crf", type=int, metavar="Q",
-                        help="quality, lower is better and bigger (default: h264 23, hevc 28, "
-                             "av1 35, vp9 35; mp4v: quantiser 2-31, default 5)")
+                        help=f"quality, lower is better and bigger (default: {crfs}; mp4v: "
+                             f"quantiser {'-'.join(map(str, CRF_RANGE['mp4v']))}, default "
+                             f"{DEFAULT_CRF['mp4v']})")
     parser.add_argument("--preset", metavar="P",
-                        help="encoder speed preset (default: h264/hevc ultrafast, av1 12, vp9 8)")
+                        help=f"encoder speed preset (default: {presets})")
 
 
 def track_config(args):
