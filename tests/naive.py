@@ -269,3 +269,67 @@ def naive_tile_weight_sums(image, lut, tile):
         for x in range(tx):
             out[y, x] = pixel[y * tile:(y + 1) * tile, x * tile:(x + 1) * tile].sum()
     return out
+
+
+def naive_heat_features(heat, origin, boxes, threshold, frame_size, levels=(1 / 3, 2 / 3)):
+    """The box refinement's features (fastdet.detector.refine.heat_features)
+    with NumPy array operations, box by box."""
+    n_features = 1 + 4 * len(levels) + 4 + 2
+    out = np.zeros((len(boxes), n_features))
+    out[:, 0] = 1.0
+    frame_width, frame_height = frame_size
+    geometry = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    out[:, -2] = np.log(np.maximum(geometry[:, 3] - geometry[:, 1], 1) / frame_height)
+    out[:, -1] = np.abs((geometry[:, 0] + geometry[:, 2]) / 2 - frame_width / 2) / frame_height
+    flip = geometry[:, 0] + geometry[:, 2] < frame_width
+    ox, oy = origin
+    for row, (x1, y1, x2, y2) in enumerate(np.asarray(boxes, dtype=np.int64).reshape(-1, 4)):
+        width, height = max(x2 - x1, 1), max(y2 - y1, 1)
+        cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
+        a1, b1 = max(x1 - ox, 0), max(y1 - oy, 0)
+        a2, b2 = min(x2 - ox, heat.shape[1]), min(y2 - oy, heat.shape[0])
+        mass = np.zeros((0, 0))
+        if a2 > a1 and b2 > b1:
+            mass = np.maximum(heat[b1:b2, a1:a2].astype(np.float64) - threshold, 0.0)
+        total = mass.sum()
+        if total <= 0:
+            out[row, 1:-2] = [-0.5, -0.5, 0.5, 0.5] * len(levels) + [0, 0, 0.29, 0.29]
+            continue
+        xs = (np.arange(a1, a2) + ox + 0.5 - cx) / width
+        ys = (np.arange(b1, b2) + oy + 0.5 - cy) / height
+        columns, rows = mass.sum(axis=0), mass.sum(axis=1)
+        peak = mass.max()
+        col = 1
+        for level in levels:
+            above = mass >= level * peak
+            cols_in = np.flatnonzero(above.any(axis=0))
+            rows_in = np.flatnonzero(above.any(axis=1))
+            left, right = xs[cols_in[0]] - 0.5 / width, xs[cols_in[-1]] + 0.5 / width
+            if flip[row]:
+                left, right = -right, -left
+            out[row, col:col + 4] = (left, ys[rows_in[0]] - 0.5 / height, right,
+                                     ys[rows_in[-1]] + 0.5 / height)
+            col += 4
+        mx = columns @ xs / total
+        my = rows @ ys / total
+        out[row, col:col + 4] = (-mx if flip[row] else mx, my,
+                                 np.sqrt(columns @ (xs - mx) ** 2 / total),
+                                 np.sqrt(rows @ (ys - my) ** 2 / total))
+    return out
+
+
+def naive_refine_boxes(boxes, features, weights, frame_width):
+    """The refinement's edge placement (fastdet.detector.refine.refine_boxes) with NumPy."""
+    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    offsets = features @ np.asarray(weights, dtype=np.float64).T
+    flip = boxes[:, 0] + boxes[:, 2] < frame_width
+    offsets[flip] = np.stack([-offsets[flip, 2], offsets[flip, 1], -offsets[flip, 0],
+                              offsets[flip, 3]], axis=1)
+    width = boxes[:, 2] - boxes[:, 0]
+    height = boxes[:, 3] - boxes[:, 1]
+    cx = (boxes[:, 0] + boxes[:, 2]) / 2
+    cy = (boxes[:, 1] + boxes[:, 3]) / 2
+    out = np.stack([cx + offsets[:, 0] * width, cy + offsets[:, 1] * height,
+                    cx + offsets[:, 2] * width, cy + offsets[:, 3] * height], axis=1)
+    return np.concatenate([np.minimum(out[:, :2], out[:, 2:]), np.maximum(out[:, :2], out[:, 2:])],
+                          axis=1)

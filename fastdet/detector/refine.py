@@ -24,12 +24,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..kernels.refine import box_heat_features, refined_edges
+
 #: Heat levels, as fractions of the way from the heat threshold to a blob's
 #: peak, whose bounding boxes are features.
 LEVELS = (1 / 3, 2 / 3)
 #: Length of a feature vector: a constant, the box of each level, the heat's
 #: centroid and spread, the box's height and its distance from the middle column.
 N_FEATURES = 1 + 4 * len(LEVELS) + 4 + 2
+_LEVELS = np.array(LEVELS, dtype=np.float64)
 
 
 def mirrored(boxes, frame_width):
@@ -67,48 +70,14 @@ def heat_features(heat, origin, boxes, threshold, frame_size):
         measured in the mirrored frame: their x offsets change sign and
         their left and right edges swap.
     """
-    out = np.zeros((len(boxes), N_FEATURES))
-    out[:, 0] = 1.0
+    boxes = np.ascontiguousarray(np.asarray(boxes, dtype=np.int64).reshape(-1, 4))
+    heat = np.asarray(heat)
+    if heat.dtype != np.float32 and heat.dtype != np.float64:
+        heat = heat.astype(np.float64)
+    out = np.empty((len(boxes), N_FEATURES))
     frame_width, frame_height = frame_size
-    geometry = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-    out[:, -2] = np.log(np.maximum(geometry[:, 3] - geometry[:, 1], 1) / frame_height)
-    out[:, -1] = np.abs((geometry[:, 0] + geometry[:, 2]) / 2 - frame_width / 2) / frame_height
-    flip = mirrored(geometry, frame_width)
-    ox, oy = origin
-    for row, (x1, y1, x2, y2) in enumerate(np.asarray(boxes, dtype=np.int64)):
-        width, height = max(x2 - x1, 1), max(y2 - y1, 1)
-        cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
-        a1, b1 = max(x1 - ox, 0), max(y1 - oy, 0)
-        a2, b2 = min(x2 - ox, heat.shape[1]), min(y2 - oy, heat.shape[0])
-        mass = np.zeros((0, 0))
-        if a2 > a1 and b2 > b1:
-            mass = np.maximum(heat[b1:b2, a1:a2].astype(np.float64) - threshold, 0.0)
-        total = mass.sum()
-        if total <= 0:
-            # No heat inside (a box moved off its blob): the features of a
-            # flat blob filling its box.
-            out[row, 1:-2] = [-0.5, -0.5, 0.5, 0.5] * len(LEVELS) + [0, 0, 0.29, 0.29]
-            continue
-        xs = (np.arange(a1, a2) + ox + 0.5 - cx) / width
-        ys = (np.arange(b1, b2) + oy + 0.5 - cy) / height
-        columns, rows = mass.sum(axis=0), mass.sum(axis=1)
-        peak = mass.max()
-        col = 1
-        for level in LEVELS:
-            above = mass >= level * peak
-            cols_in = np.flatnonzero(above.any(axis=0))
-            rows_in = np.flatnonzero(above.any(axis=1))
-            left, right = xs[cols_in[0]] - 0.5 / width, xs[cols_in[-1]] + 0.5 / width
-            if flip[row]:
-                left, right = -right, -left
-            out[row, col:col + 4] = (left, ys[rows_in[0]] - 0.5 / height, right,
-                                     ys[rows_in[-1]] + 0.5 / height)
-            col += 4
-        mx = columns @ xs / total
-        my = rows @ ys / total
-        out[row, col:col + 4] = (-mx if flip[row] else mx, my,
-                                 np.sqrt(columns @ (xs - mx) ** 2 / total),
-                                 np.sqrt(rows @ (ys - my) ** 2 / total))
+    box_heat_features(heat, int(origin[0]), int(origin[1]), boxes, float(threshold),
+                      int(frame_width), int(frame_height), _LEVELS, out)
     return out
 
 
@@ -132,16 +101,12 @@ def refine_boxes(boxes, features, weights, frame_width):
         Unrounded, unclipped; an edge pair the model crosses is put back in
         order.
     """
-    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-    offsets = features @ np.asarray(weights, dtype=np.float64).T
-    flip = mirrored(boxes, frame_width)
-    offsets[flip] = np.stack([-offsets[flip, 2], offsets[flip, 1], -offsets[flip, 0],
-                              offsets[flip, 3]], axis=1)
-    width = boxes[:, 2] - boxes[:, 0]
-    height = boxes[:, 3] - boxes[:, 1]
-    cx = (boxes[:, 0] + boxes[:, 2]) / 2
-    cy = (boxes[:, 1] + boxes[:, 3]) / 2
-    out = np.stack([cx + offsets[:, 0] * width, cy + offsets[:, 1] * height,
-                    cx + offsets[:, 2] * width, cy + offsets[:, 3] * height], axis=1)
-    return np.concatenate([np.minimum(out[:, :2], out[:, 2:]), np.maximum(out[:, :2], out[:, 2:])],
-                          axis=1)
+    boxes = np.ascontiguousarray(np.asarray(boxes, dtype=np.int64).reshape(-1, 4))
+    out = np.empty((len(boxes), 4))
+    # A writable array of its own (a broadcast view is read-only: another
+    # signature to compile).
+    frame_widths = np.empty(len(boxes))
+    frame_widths[:] = frame_width
+    refined_edges(boxes, np.ascontiguousarray(features, dtype=np.float64),
+                  np.ascontiguousarray(weights, dtype=np.float64), frame_widths, out)
+    return out

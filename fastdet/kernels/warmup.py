@@ -100,8 +100,14 @@ def _two_blob_heat():
 
 def _warm_label():
     from .label import heat_blobs
-    heat_blobs(_two_blob_heat(), 0, 0, 1.0, True, True, np.float32(0.3), 8, 4,
-               np.linspace(0.2, 0.8, 5))
+    from .refine import box_heat_features, refined_edges
+    heat = _two_blob_heat()
+    heat_blobs(heat, 0, 0, 1.0, True, True, np.float32(0.3), 8, 4, np.linspace(0.2, 0.8, 5))
+    # The box refinement (default config) measures each blob right after.
+    boxes = np.array([[2, 4, 16, 20]], np.int64)
+    features = np.empty((1, 11))
+    box_heat_features(heat, 0, 0, boxes, 1.0, 40, 24, np.array([0.5]), features)
+    refined_edges(boxes, features, np.zeros((4, 11)), np.array([40.0]), np.empty((1, 4)))
 
 
 def _warm_split():
@@ -133,7 +139,8 @@ def _warm_hog_api():
 
 
 #: Each family's warm-up, by name.  "label" is what every detection runs
-#: (heat_blobs); "split" the full-resolution split of a blob holding two cars.
+#: (heat_blobs and the box refinement's features); "split" the
+#: full-resolution split of a blob holding two cars.
 FAMILIES = {"convert": _warm_convert, "resize": _warm_resize, "hog": _warm_hog,
             "score": _warm_score, "colour": _warm_colour, "heat": _warm_heat,
             "label": _warm_label, "split": _warm_split, "track": _warm_track,

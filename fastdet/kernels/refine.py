@@ -1,0 +1,180 @@
+"""Heat statistics of blob boxes: the features of the box refinement.
+
+:func:`fastdet.detector.refine.heat_features` defines the features (its
+docstring says what each one measures); this kernel computes them for all
+of a frame's boxes in one call.  Per box it makes one pass over the heat
+inside the box for the column and row sums and peaks of the mass
+``max(heat - threshold, 0)``; the extent of the mass at or above
+``level * peak`` is where the column and row peaks reach it, and the
+centroid and the spread come from the column and row sums.  Done in NumPy, a box cost some forty array
+calls (about 0.15 ms); here it is a few microseconds.
+
+All sums are float64, as in NumPy; they add in raster order, so a feature
+may differ from a NumPy sum's pairwise order in the last bits.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["box_heat_features"]
+
+
+@njit(cache=True, nogil=True)
+def box_heat_features(heat, origin_x, origin_y, boxes, threshold, frame_width, frame_height,
+                      levels, out):
+    """Write the refinement features of each box into ``out``.
+
+    Parameters
+    ----------
+    heat : ndarray of float32 or float64, shape (h, w)
+        Heat over a region of the frame whose top-left pixel is
+        ``(origin_x, origin_y)``.
+    origin_x, origin_y : int
+    boxes : ndarray of int64, shape (N, 4)
+        ``x1, y1, x2, y2`` in frame pixels, ``x2``/``y2`` exclusive.
+    threshold : float
+        The heat threshold the blobs were cut at.
+    frame_width, frame_height : int
+    levels : ndarray of float64, shape (L,)
+        Fractions of the peak mass whose extents are features (above 1
+        taken as 1).
+    out : ndarray of float64, shape (N, 1 + 4 * L + 6)
+        Filled with the features of
+        :func:`fastdet.detector.refine.heat_features`, in its order.
+    """
+    n_levels = levels.shape[0]
+    height_px, width_px = heat.shape
+    columns = np.empty(width_px, np.float64)
+    rows = np.empty(height_px, np.float64)
+    column_peaks = np.empty(width_px, np.float64)
+    row_peaks = np.empty(height_px, np.float64)
+    last = out.shape[1]
+    for row in range(boxes.shape[0]):
+        x1, y1, x2, y2 = boxes[row, 0], boxes[row, 1], boxes[row, 2], boxes[row, 3]
+        out[row, 0] = 1.0
+        out[row, last - 2] = math.log(max(y2 - y1, 1) / frame_height)
+        out[row, last - 1] = abs((x1 + x2) / 2 - frame_width / 2) / frame_height
+        flip = x1 + x2 < frame_width
+        width = max(x2 - x1, 1)
+        height = max(y2 - y1, 1)
+        cx = (x1 + x2) / 2
+        cy = (y1 + y2) / 2
+        a1, b1 = max(x1 - origin_x, 0), max(y1 - origin_y, 0)
+        a2, b2 = min(x2 - origin_x, width_px), min(y2 - origin_y, height_px)
+        total = 0.0
+        peak = 0.0
+        if a2 > a1 and b2 > b1:
+            columns[a1:a2] = 0.0
+            column_peaks[a1:a2] = 0.0
+            for b in range(b1, b2):
+                line = 0.0
+                line_peak = 0.0
+                for a in range(a1, a2):
+                    mass = max(np.float64(heat[b, a]) - threshold, 0.0)
+                    line += mass
+                    line_peak = max(line_peak, mass)
+                    columns[a] += mass
+                    column_peaks[a] = max(column_peaks[a], mass)
+                rows[b] = line
+                row_peaks[b] = line_peak
+                total += line
+                peak = max(peak, line_peak)
+        if not total > 0.0:
+            # No heat inside (a box moved off its blob): the features of a
+            # flat blob filling its box.
+            col = 1
+            for _ in range(n_levels):
+                out[row, col:col + 4] = (-0.5, -0.5, 0.5, 0.5)
+                col += 4
+            out[row, col:col + 4] = (0.0, 0.0, 0.29, 0.29)
+            continue
+        # Pixel centres relative to the box centre, in box widths and heights.
+        x_shift = origin_x + 0.5 - cx
+        y_shift = origin_y + 0.5 - cy
+        col = 1
+        for k in range(n_levels):
+            # A column (row) holds mass at or above the bound exactly when
+            # its peak does: the extents come from the peaks alone.  The
+            # bound is at most the peak, so the scans stop at the latest on
+            # the peak's column and row.
+            bound = min(levels[k], 1.0) * peak
+            left, right = a1, a2 - 1
+            while column_peaks[left] < bound:
+                left += 1
+            while column_peaks[right] < bound:
+                right -= 1
+            top, bottom = b1, b2 - 1
+            while row_peaks[top] < bound:
+                top += 1
+            while row_peaks[bottom] < bound:
+                bottom -= 1
+            x_left = (left + x_shift) / width - 0.5 / width
+            x_right = (right + x_shift) / width + 0.5 / width
+            if flip:
+                x_left, x_right = -x_right, -x_left
+            out[row, col] = x_left
+            out[row, col + 1] = (top + y_shift) / height - 0.5 / height
+            out[row, col + 2] = x_right
+            out[row, col + 3] = (bottom + y_shift) / height + 0.5 / height
+            col += 4
+        mx = 0.0
+        for a in range(a1, a2):
+            mx += columns[a] * ((a + x_shift) / width)
+        mx /= total
+        my = 0.0
+        for b in range(b1, b2):
+            my += rows[b] * ((b + y_shift) / height)
+        my /= total
+        spread_x = 0.0
+        for a in range(a1, a2):
+            spread_x += columns[a] * ((a + x_shift) / width - mx) ** 2
+        spread_y = 0.0
+        for b in range(b1, b2):
+            spread_y += rows[b] * ((b + y_shift) / height - my) ** 2
+        out[row, col] = -mx if flip else mx
+        out[row, col + 1] = my
+        out[row, col + 2] = math.sqrt(spread_x / total)
+        out[row, col + 3] = math.sqrt(spread_y / total)
+
+
+@njit(cache=True, nogil=True)
+def refined_edges(boxes, features, weights, frame_widths, out):
+    """Place each box's edges by the linear refinement model.
+
+    Parameters
+    ----------
+    boxes : ndarray of int64, shape (N, 4)
+    features : ndarray of float64, shape (N, F)
+        :func:`box_heat_features` of the boxes.
+    weights : ndarray of float64, shape (4, F)
+        Rows for x1, y1, x2, y2 of the mirrored box (left of the middle).
+    frame_widths : ndarray of float64, shape (N,)
+        Width of each box's frame; a box whose ``x1 + x2`` is below it is
+        mirrored.
+    out : ndarray of float64, shape (N, 4)
+        The refined boxes, unrounded; an edge pair the model crosses is put
+        back in order.
+    """
+    for row in range(boxes.shape[0]):
+        x1, y1, x2, y2 = boxes[row, 0], boxes[row, 1], boxes[row, 2], boxes[row, 3]
+        offsets = np.zeros(4)
+        for edge in range(4):
+            for k in range(features.shape[1]):
+                offsets[edge] += features[row, k] * weights[edge, k]
+        left, top, right, bottom = offsets[0], offsets[1], offsets[2], offsets[3]
+        if x1 + x2 < frame_widths[row]:
+            left, right = -right, -left
+        width = x2 - x1
+        height = y2 - y1
+        cx = (x1 + x2) / 2
+        cy = (y1 + y2) / 2
+        ex1, ey1 = cx + left * width, cy + top * height
+        ex2, ey2 = cx + right * width, cy + bottom * height
+        out[row, 0] = min(ex1, ex2)
+        out[row, 1] = min(ey1, ey2)
+        out[row, 2] = max(ex1, ex2)
+        out[row, 3] = max(ey1, ey2)
