@@ -51,7 +51,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["accumulate_heat", "accumulate_heat_into", "box_heat_region", "heat_cells"]
+__all__ = ["accumulate_heat", "accumulate_heat_into", "box_heat_region", "decay_heat",
+           "heat_cells"]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -338,3 +339,40 @@ def box_heat_region(boxes, weights, width, height):
     heat = np.empty((y1 - y0, x1 - x0), dtype=np.float32)
     _paint(heat, row_starts, col_starts, cells)
     return heat, x0, y0
+
+
+@numba.njit(cache=True, nogil=True)
+def decay_heat(state, heat, x0, y0, keep, weight):
+    """One step of exponential heat smoothing, in place, in one pass over ``state``.
+
+    ``state *= keep``, then ``state[y0:y0 + h, x0:x0 + w] += weight * heat``
+    (``heat`` of shape ``(h, w)``), rounded as NumPy rounds those two
+    statements in float32: the product, then the sum.  (In NumPy the decay
+    is a pass over the whole map and the region's product a temporary of
+    its own: 0.33 ms on the search band of a 1280x720 frame.)
+
+    Parameters
+    ----------
+    state : numpy.ndarray
+        float32 array ``(H, W)``, the smoothed map; updated in place.
+    heat : numpy.ndarray
+        float32 array ``(h, w)``, the current heat over a region of the map.
+    x0, y0 : int
+        Where the region starts in the map; it must lie inside the map.
+    keep, weight : numpy.float32
+        ``1 - alpha`` and ``alpha``.
+    """
+    height, width = state.shape
+    rows, columns = heat.shape
+    if x0 < 0 or y0 < 0 or x0 + columns > width or y0 + rows > height:
+        raise ValueError("the heat region must lie inside the map")
+    keep = np.float32(keep)
+    weight = np.float32(weight)
+    for y in range(height):
+        line = state[y]
+        for x in range(width):
+            line[x] = line[x] * keep
+        if y0 <= y < y0 + rows:
+            source = heat[y - y0]
+            for x in range(columns):
+                line[x0 + x] = line[x0 + x] + weight * source[x]

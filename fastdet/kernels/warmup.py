@@ -122,8 +122,12 @@ def _warm_split():
 
 
 def _warm_track():
+    from .heat import decay_heat
     from .patch import (grey_thumbnail, mask_overlap_search, saturation_mask,
                         sum_squared_difference)
+    # The video pipeline's heat smoothing, then its patch tracking.
+    decay_heat(np.zeros((6, 8), np.float32), np.ones((2, 3), np.float32), 1, 2,
+               np.float32(0.75), np.float32(0.25))
     patch = np.ascontiguousarray(_frame_band(16, 16))
     mask = saturation_mask(patch, 100)
     mask_overlap_search(mask, mask, (8, 8), 2, 1)
@@ -140,7 +144,8 @@ def _warm_hog_api():
 
 #: Each family's warm-up, by name.  "label" is what every detection runs
 #: (heat_blobs and the box refinement's features); "split" the
-#: full-resolution split of a blob holding two cars.
+#: full-resolution split of a blob holding two cars; "track" the video
+#: pipeline's own kernels (heat smoothing, patch tracking).
 FAMILIES = {"convert": _warm_convert, "resize": _warm_resize, "hog": _warm_hog,
             "score": _warm_score, "colour": _warm_colour, "heat": _warm_heat,
             "label": _warm_label, "split": _warm_split, "track": _warm_track,

@@ -11,6 +11,8 @@ import collections
 
 import numpy as np
 
+from ..kernels.heat import decay_heat
+
 
 def _placed(heat, offset, shape):
     # The region slice of a map of `shape` that a region heat map covers.
@@ -74,8 +76,9 @@ class ExponentialHeat(NoHeatSmoothing):
         if self._state is None or self._state.shape != shape:
             self._state = super().update(heat, offset, shape)
         else:
-            self._state *= np.float32(1.0 - self.alpha)
-            self._state[_placed(heat, offset, shape)] += np.float32(self.alpha) * heat
+            decay_heat(self._state, np.ascontiguousarray(heat, dtype=np.float32),
+                       int(offset[0]), int(offset[1]), np.float32(1.0 - self.alpha),
+                       np.float32(self.alpha))
         return self._state
 
     def reset(self):

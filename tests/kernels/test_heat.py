@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fastdet.kernels.heat import accumulate_heat, accumulate_heat_into
+from fastdet.kernels.heat import accumulate_heat, accumulate_heat_into, decay_heat
 from naive import naive_heat
 
 
@@ -268,3 +268,26 @@ def test_box_heat_region_edge_cases():
         box_heat_region(np.array([[20, 0, 30, 5]], np.int32), np.ones(1, np.float32), 9, 9)
     with pytest.raises(ValueError):
         box_heat_region(np.zeros((2, 4), np.int32), np.ones(3, np.float32), 9, 9)
+
+
+@pytest.mark.parametrize("shape, region, offset", [
+    ((1, 1), (1, 1), (0, 0)), ((7, 13), (3, 5), (4, 2)), ((194, 1280), (150, 900), (17, 33)),
+    ((9, 11), (9, 11), (0, 0)), ((9, 11), (0, 0), (3, 3))])
+def test_decay_heat_rounds_as_numpy(shape, region, offset):
+    rng = np.random.default_rng(shape[1])
+    state = (rng.random(shape) * 7).astype(np.float32)
+    heat = (rng.random(region) * 5).astype(np.float32)
+    x0, y0 = offset
+    keep, weight = np.float32(0.75), np.float32(0.25)
+    expected = state.copy()
+    expected *= keep
+    expected[y0:y0 + region[0], x0:x0 + region[1]] += weight * heat
+    decay_heat(state, heat, x0, y0, keep, weight)
+    np.testing.assert_array_equal(state, expected)
+
+
+@pytest.mark.parametrize("offset", [(-1, 0), (0, -1), (5, 0), (0, 5)])
+def test_decay_heat_refuses_a_region_outside_the_map(offset):
+    with pytest.raises(ValueError, match="inside the map"):
+        decay_heat(np.zeros((6, 8), np.float32), np.ones((2, 4), np.float32), *offset,
+                   np.float32(0.5), np.float32(0.5))
