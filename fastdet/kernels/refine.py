@@ -68,8 +68,9 @@ def box_heat_features(heat, origin_x, origin_y, boxes, threshold, frame_width, f
         total = 0.0
         peak = 0.0
         if a2 > a1 and b2 > b1:
-            columns[a1:a2] = 0.0
-            column_peaks[a1:a2] = 0.0
+            for a in range(a1, a2):
+                columns[a] = 0.0
+                column_peaks[a] = 0.0
             for b in range(b1, b2):
                 line = 0.0
                 line_peak = 0.0
@@ -86,11 +87,16 @@ def box_heat_features(heat, origin_x, origin_y, boxes, threshold, frame_width, f
         if not total > 0.0:
             # No heat inside (a box moved off its blob): the features of a
             # flat blob filling its box.
-            col = 1
-            for _ in range(n_levels):
-                out[row, col:col + 4] = (-0.5, -0.5, 0.5, 0.5)
-                col += 4
-            out[row, col:col + 4] = (0.0, 0.0, 0.29, 0.29)
+            for k in range(n_levels):
+                out[row, 1 + 4 * k] = -0.5
+                out[row, 2 + 4 * k] = -0.5
+                out[row, 3 + 4 * k] = 0.5
+                out[row, 4 + 4 * k] = 0.5
+            col = 1 + 4 * n_levels
+            out[row, col] = 0.0
+            out[row, col + 1] = 0.0
+            out[row, col + 2] = 0.29
+            out[row, col + 3] = 0.29
             continue
         # Pixel centres relative to the box centre, in box widths and heights.
         x_shift = origin_x + 0.5 - cx

@@ -196,6 +196,20 @@ def test_box_history_averages_corners():
     np.testing.assert_array_equal(history.box, [2, 1, 12, 11])
 
 
+@pytest.mark.parametrize("frames", [1, 2, 3, 4, 7])
+def test_box_history_rounds_the_mean_half_up(frames):
+    # Means ending in .5 (even counts) and negative corners: floor(mean + 0.5).
+    rng = np.random.default_rng(frames)
+    history = BoxHistory(frames)
+    pushed = []
+    for _ in range(12):
+        box = rng.integers(-50, 1300, 4).astype(np.int32)
+        history.push(box)
+        pushed.append(box)
+        expected = np.floor(np.mean(pushed[-frames:], axis=0) + 0.5).astype(np.int32)
+        np.testing.assert_array_equal(history.box, expected, strict=True)
+
+
 def test_box_smoothing_removes_jitter():
     block = texture(30, 40)
     frames = []
