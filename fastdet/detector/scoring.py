@@ -56,7 +56,9 @@ class Hits:
 
 def kernel_families(options):
     """The kernel families (``kernels.warmup.FAMILIES``) a detection with ``options`` runs."""
-    families = ["resize", "heat", "label"]
+    # "refine": the default config refines boxes (a config without weights
+    # only loads two small kernels it does not call).
+    families = ["resize", "heat", "label", "refine"]
     if options.color_space == "HLS":
         families.append("convert")
     if options.use_hog and options.hog_channel == "all" and (

@@ -27,11 +27,13 @@ import time
 
 import numpy as np
 
-#: CPU seconds each family took to compile on the development machine (empty
-#: cache, a process of its own, Numba's own helpers included);
+#: CPU seconds each family took to compile (empty cache, a process of its
+#: own, Numba's own helpers included), measured on an AMD EPYC (Zen 3, AVX2,
+#: 2026-11-27; the AVX-512 development machine took about 0.6 of these);
 #: :func:`split_families` balances two processes with these weights.
-COMPILE_WEIGHTS = {"label": 4.4, "score": 2.3, "colour": 1.9, "heat": 1.8, "resize": 1.6,
-                   "split": 1.6, "hog": 1.2, "convert": 0.6, "track": 1.2, "hog_api": 0.8}
+COMPILE_WEIGHTS = {"label": 8.1, "split": 4.8, "track": 4.6, "score": 3.7, "hog_api": 3.3,
+                   "colour": 2.9, "heat": 2.7, "resize": 2.7, "hog": 2.4, "refine": 2.0,
+                   "convert": 1.4}
 
 
 def _frame_band(height, width):
@@ -100,13 +102,15 @@ def _two_blob_heat():
 
 def _warm_label():
     from .label import heat_blobs
+    heat_blobs(_two_blob_heat(), 0, 0, 1.0, True, True, np.float32(0.3), 8, 4,
+               np.linspace(0.2, 0.8, 5))
+
+
+def _warm_refine():
     from .refine import box_heat_features, refined_edges
-    heat = _two_blob_heat()
-    heat_blobs(heat, 0, 0, 1.0, True, True, np.float32(0.3), 8, 4, np.linspace(0.2, 0.8, 5))
-    # The box refinement (default config) measures each blob right after.
     boxes = np.array([[2, 4, 16, 20]], np.int64)
     features = np.empty((1, 11))
-    box_heat_features(heat, 0, 0, boxes, 1.0, 40, 24, np.array([0.5]), features)
+    box_heat_features(_two_blob_heat(), 0, 0, boxes, 1.0, 40, 24, np.array([0.5]), features)
     refined_edges(boxes, features, np.zeros((4, 11)), np.array([40.0]), np.empty((1, 4)))
 
 
@@ -143,23 +147,26 @@ def _warm_hog_api():
 
 
 #: Each family's warm-up, by name.  "label" is what every detection runs
-#: (heat_blobs and the box refinement's features); "split" the
-#: full-resolution split of a blob holding two cars; "track" the video
-#: pipeline's own kernels (heat smoothing, patch tracking).
+#: (heat_blobs); "refine" the box refinement of the default config (a family
+#: of its own, so that a cold compile can put it in the other process than
+#: "label", the heaviest); "split" the full-resolution split of a blob
+#: holding two cars; "track" the video pipeline's own kernels (heat
+#: smoothing, patch tracking).
 FAMILIES = {"convert": _warm_convert, "resize": _warm_resize, "hog": _warm_hog,
             "score": _warm_score, "colour": _warm_colour, "heat": _warm_heat,
-            "label": _warm_label, "split": _warm_split, "track": _warm_track,
-            "hog_api": _warm_hog_api}
+            "label": _warm_label, "refine": _warm_refine, "split": _warm_split,
+            "track": _warm_track, "hog_api": _warm_hog_api}
 
 #: The families every detection with the default feature options runs.
-DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "heat", "label")
+DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "heat", "label", "refine")
 
 #: One dispatcher per family whose cache entry tells whether the family was
 #: compiled before (see :func:`cold_families`): module, name.
 _PROBES = {"convert": ("convert", "_bgr_to_hls"), "resize": ("resize", "_resize"),
            "hog": ("hog", "_cell_rows_u8_fast"), "score": ("score", "_add_hog_scores_phase"),
            "colour": ("colour", "_colour_maps"), "heat": ("heat", "box_heat_region"),
-           "label": ("label", "heat_blobs"), "split": ("label", "split_component"),
+           "label": ("label", "heat_blobs"), "refine": ("refine", "box_heat_features"),
+           "split": ("label", "split_component"),
            "track": ("patch", "mask_overlap_search"),
            "hog_api": ("blocks", "_normalize_serial")}
 
