@@ -7,6 +7,10 @@ same rounds (``fastdet.bench.video_run``; ``fastdet bench --video`` prints the
 same figures as a table): frames per second, the ratio to R, and the peak RSS
 on the 1000-frame input relative to the 38-frame clip.
 
+``PipelineThreads`` times the pipeline over the decoded clip with one thread,
+with all threads sharing each frame, and with all threads scoring as many
+frames at once.
+
 
 Frames per second of ``fastdet.VideoPipeline`` (``fastdet.video.pipeline``) over all 38
 frames of ``test_video.mp4``, decoding included (writing excluded), with
@@ -26,7 +30,7 @@ import fastdet
 from fastdet.bench.video_run import MODES, video_benchmark
 from fastdet.detector.detector import Detector
 
-from ._common import bench_model, skip_if_missing, skip_reason, video_path
+from ._common import bench_model, skip_if_missing, skip_reason, video_frames, video_path
 
 #: Track settings by asv label (keyword arguments of ``TrackConfig``).
 TRACK_SETTINGS = {"detect every frame": {}, "detect every 5th": {"every": 5},
@@ -153,3 +157,49 @@ class FastdetRun:
         return cache["rss_growth"]
 
     track_peak_rss_growth_1000_vs_38_frames.unit = "fraction"
+
+
+#: How the detector's threads share the work, by asv label: (threads, frames at once).
+PIPELINE_THREADS = {"1 thread": ("1", 1), "all threads share each frame": ("all", 1),
+                    "all threads, frames at once": ("all", None)}
+
+
+class PipelineThreads:
+    """The video pipeline over the 38 decoded frames (default ``[track]``), seconds per pass.
+
+    One thread; all threads sharing each frame; or as many single-thread
+    detectors scoring that many frames at once (``fastdet.video.ahead``), as
+    in the last table of ``fastdet bench``.  Decoding is left out (frames
+    decoded once), so the figures are the pipeline's own.
+    """
+
+    params = (list(PIPELINE_THREADS),)
+    param_names = ("threads",)
+    number = 1
+    repeat = (3, 15, 30.0)
+    warmup_time = 0
+    timeout = 600
+
+    def setup(self, threads):
+        pipeline_class, track_config = video_pipeline_api()
+        try:
+            from fastdet.video.ahead import process_ahead  # noqa: F401
+            from fastdet.video.memory import reuse_freed_frames
+        except ImportError:
+            raise NotImplementedError("this fastdet cannot score frames at once") from None
+        reuse_freed_frames()
+        label, at_once = PIPELINE_THREADS[threads]
+        count = 1 if label == "1" else numba.config.NUMBA_NUM_THREADS
+        self.workers = count if at_once is None else at_once
+        detector = Detector(bench_model(), threads=1 if self.workers > 1 else count)
+        self.pipeline = pipeline_class(detector, track_config())
+        self.frames = video_frames()
+        self._run()  # compile or load kernels, allocate buffers
+
+    def _run(self):
+        self.pipeline.reset()
+        for _ in self.pipeline(self.frames, workers=self.workers):
+            pass
+
+    def time_pipeline(self, threads):
+        self._run()

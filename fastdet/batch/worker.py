@@ -2,7 +2,7 @@
 
 :class:`BatchSetup` is registered once per batch (named after the model's
 and the configuration's hashes) and set up once per worker process: it
-sets the allocator up for frames (:mod:`fastdet.batch.memory`), loads the
+sets the allocator up for frames (:mod:`fastdet.video.memory`), loads the
 model from the bytes it carries and runs the pipeline on a noise frame,
 which loads the compiled kernels from Numba's cache (or compiles them once,
 on a machine whose cache is empty).  Tasks then only
@@ -31,7 +31,7 @@ from ..detector.model import load_model
 from ..errors import FastdetError
 from .boundary import IdMap
 from .job import process_one, render_one, warm_up
-from .memory import reuse_freed_frames
+from ..video.memory import reuse_freed_frames
 from .merge import concatenate_videos, merge_detections
 from .outputs import OutputPaths
 

@@ -82,6 +82,7 @@ def cmd_bench(args):
     import numba
 
     from ..bench.floor import floor_estimate, format_floor
+    from ..bench.frame_level import format_frame_level, frame_level_study
     from ..bench.hog_compare import format_hog, hog_vs_skimage
     from ..bench.scaling import SIZES, format_scaling, scaling_study
     from ..bench.scaling_plot import plot_scaling
@@ -139,6 +140,13 @@ def cmd_bench(args):
     print(format_stages(run.results))
     print("\n## fastdet threads (busy: colour conversion and scoring; ratio of medians)\n")
     print(format_threads(run.results))
+    if max(threads) > 1:
+        pipeline_rounds = args.rounds or 3
+        points = frame_level_study(frames, threads, pipeline_rounds, model, config, log=log)
+        print(f"\n## The video pipeline: threads sharing each frame or scoring frames at once "
+              f"({len(frames)} frames in order, default [track]; median of {pipeline_rounds} "
+              "round-robin passes)\n")
+        print(format_frame_level(points))
 
     print("\n## fastdet.hog vs skimage.feature.hog\n")
     hog_sizes = SIZES if args.hog else (frame_size,)

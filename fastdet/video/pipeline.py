@@ -46,6 +46,7 @@ from ..detector.detections import Detections
 from ..detector.frames import as_bgr_frame
 from ..detector.plan import search_band
 from ..errors import InputError
+from .ahead import process_ahead
 from .config import TrackConfig
 from .patch import SceneChangeTrigger
 from .smoothing import make_heat_smoother
@@ -140,7 +141,7 @@ class VideoPipeline:
         self.frames = 0
         self.full_searches = 0
 
-    def __call__(self, frames, first_index=0):
+    def __call__(self, frames, first_index=0, workers=1):
         """Process an iterable of frames lazily.
 
         Parameters
@@ -149,6 +150,11 @@ class VideoPipeline:
             BGR uint8 frames (grey and BGRA accepted), in order.
         first_index : int
             Index of the first frame (e.g. the ``--start`` frame of a video).
+        workers : int
+            Frames scored at once, each by a single-thread detector of its
+            own (:func:`fastdet.video.ahead.process_ahead`; without patch
+            tracking and with a :class:`~fastdet.Detector`): the same
+            results as one at a time.
 
         Yields
         ------
@@ -159,8 +165,7 @@ class VideoPipeline:
             ``[x1, y1, x2, y2]``, ``x2``/``y2`` exclusive.
         track_ids : ndarray of int64, shape (N,)
         """
-        for offset, frame in enumerate(frames):
-            detections = self.process(frame)
+        for offset, (frame, _, detections) in enumerate(process_ahead(self, frames, workers)):
             yield first_index + offset, frame, detections.xyxy, detections.track_id
 
     run = __call__
@@ -196,7 +201,26 @@ class VideoPipeline:
         return self._since_full is None or (period is not None
                                             and self._since_full + 1 >= period)
 
-    def process(self, frame):
+    def searches_ahead(self, count):
+        """Whether each of the next ``count`` frames will be fully searched, or ``None``.
+
+        Known in advance only without tracking, where the schedule is the
+        period alone (a frame of another size, which starts the stream over,
+        is searched whatever this says).  Callers use it to compute the
+        detector's hits of upcoming frames ahead (:mod:`fastdet.video.ahead`)
+        and pass them to :meth:`process`.
+        """
+        if self.config.tracking:
+            return None
+        period = self.config.search_period
+        since, due = self._since_full, []
+        for _ in range(count):
+            search = since is None or (period is not None and since + 1 >= period)
+            due.append(search)
+            since = 0 if search else since + 1
+        return due
+
+    def process(self, frame, hits=None):
         """Process the next frame of the stream.
 
         Parameters
@@ -204,6 +228,10 @@ class VideoPipeline:
         frame : ndarray or None
             BGR uint8 frame (grey and BGRA accepted); ``None`` is allowed
             when :attr:`wants_frame` is False.
+        hits : Hits, optional
+            The detector's hits of this frame, computed ahead (by a detector
+            with the same model and config); used if the frame is fully
+            searched and ignored otherwise.
 
         Returns
         -------
@@ -235,7 +263,7 @@ class VideoPipeline:
                 search = self._scene.changed(frame, thumbnail)
         detect_seconds = 0.0
         if search:
-            detect_seconds = self._full_search(frame, size, thumbnail)
+            detect_seconds = self._full_search(frame, size, thumbnail, hits)
             self._since_full = 0
             self.full_searches += 1
         else:
@@ -270,11 +298,12 @@ class VideoPipeline:
                                          self.config.thumbnail_factor,
                                          rows=(self._band[1], self._band[3]))
 
-    def _full_search(self, frame, size, thumbnail=None):
+    def _full_search(self, frame, size, thumbnail=None, hits=None):
         """Detect, smooth, associate; returns the seconds spent in the detector."""
         detector = self.detector
         in_detector = _Stopwatch()
-        hits = in_detector(detector.hits, frame)
+        if hits is None:
+            hits = in_detector(detector.hits, frame)
         if not self.config.tracking:
             self._tracks.associate(self._detect(hits, size, in_detector), frame)
             return in_detector.seconds

@@ -10,6 +10,7 @@ exists), wires the stages, handles Ctrl-C and SIGTERM, and reports.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import signal
 import threading
 import time
@@ -21,8 +22,10 @@ import numba
 from ..detector.config import DetectorConfig, load_config
 from ..detector.detector import Detector
 from ..errors import InputError
+from .ahead import can_look_ahead
 from .config import TrackConfig, load_track_config
 from .detection_files import DetectionWriter
+from .memory import reuse_freed_frames
 from .pipeline import VideoPipeline
 from .sink import VideoSink
 from .source import DEFAULT_TIMEOUT, VideoSource
@@ -217,7 +220,11 @@ def process_video(source, target=None, detector=None, config=None, callback=None
     threads : int, optional
         Cores the whole run may keep busy (default ``NUMBA_NUM_THREADS``),
         shared between the decoder, the detector and the encoder by
-        :func:`plan_threads`.
+        :func:`plan_threads`.  Two or more detector threads score as many
+        frames at once, one each (:mod:`fastdet.video.ahead`), unless patch
+        tracking, ``realtime`` or ``debug_view`` needs frames one at a time;
+        the process's malloc thresholds are then set for frame-sized arrays
+        (:func:`fastdet.video.memory.reuse_freed_frames`).
     realtime : bool
         Never let the input wait: when processing falls behind, only the
         newest frame is kept (``RunStats.dropped`` counts the rest); a file is
@@ -267,14 +274,25 @@ def process_video(source, target=None, detector=None, config=None, callback=None
             period = track_config.search_period
             plan = stats.plan = plan_threads(cores, target is not None,
                                              1.0 / period if period else 1.0)
-            if log is not None:
-                log(plan.describe())
+            # Several detector threads score that many frames at once, one
+            # each, where the frames to search are known ahead (no patch
+            # tracking) and latency is not the point (no --realtime).
+            frame_level = (plan.detector > 1 and not track_config.tracking and not realtime
+                           and not debug_view)
             if isinstance(detector, VideoPipeline):
                 pipeline = detector
             else:
-                pipeline = VideoPipeline(detector or Detector(config=detector_config,
-                                                              threads=plan.detector),
-                                         track_config)
+                pipeline = VideoPipeline(detector or Detector(
+                    config=detector_config, threads=1 if frame_level else plan.detector),
+                    track_config)
+            frame_level = frame_level and can_look_ahead(pipeline)
+            if frame_level:
+                plan = stats.plan = dataclasses.replace(plan, frames_at_once=plan.detector)
+                # The detector threads allocate frame-sized arrays in arenas of
+                # their own, which glibc would trim and refault every frame.
+                reuse_freed_frames()
+            if log is not None:
+                log(plan.describe())
             if isinstance(source, VideoSource):
                 video = source
             else:
@@ -307,7 +325,7 @@ def process_video(source, target=None, detector=None, config=None, callback=None
                          inbox=outboxes[-1])
             conveyor.add("decode", decode, conveyor, video, inbox, realtime, stats)
             conveyor.add("detect", detect, conveyor, inbox, outboxes, pipeline, rows, debug_view,
-                         first_output, stats, inbox=inbox)
+                         first_output, stats, plan.frames_at_once, inbox=inbox)
             total = video.expected_frames
             total = None if total is None else max(total - (first_output - video.start), 0)
             tick = None if progress is None else (lambda: progress(stats.frames, total))

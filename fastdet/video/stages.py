@@ -36,6 +36,7 @@ from av.video.reformatter import VideoReformatter
 
 from ..detector.scoring import STAGES
 from ..viz.draw import debug_frame, draw_detections_yuv420
+from .ahead import process_ahead
 from .frame_arrays import FrameConverter, plane_view
 
 #: Frames each queue holds: enough to ride out one slow frame, few enough for flat memory.
@@ -62,12 +63,17 @@ class ThreadPlan:
     decoder: int
     detector: int
     encoder: int
+    #: Frames the detector's threads score at once, one each (frame-level
+    #: parallelism, :mod:`fastdet.video.ahead`); 1: they share each frame.
+    frames_at_once: int = 1
 
     def describe(self):
         """One line for ``--verbose``."""
         encoder = f", encoder {self.encoder}" if self.encoder else ""
+        how = (f" ({self.frames_at_once} frames at once, one thread each)"
+               if self.frames_at_once > 1 else "")
         return (f"threads: {self.cores} cores -> decoder {self.decoder}, detector "
-                f"{self.detector}{encoder} (plus one light thread per stage)")
+                f"{self.detector}{how}{encoder} (plus one light thread per stage)")
 
 
 def plan_threads(cores, video=True, search_fraction=1.0):
@@ -318,30 +324,42 @@ def _put_newest(outbox, item):
                 dropped += 1
 
 
-def detect(clock, conveyor, inbox, outboxes, pipeline, rows, debug_view, first_output, stats):
-    """Detection and tracking, in frame order; warm-up frames only update the state."""
+def detect(clock, conveyor, inbox, outboxes, pipeline, rows, debug_view, first_output, stats,
+           workers=1):
+    """Detection and tracking, in frame order; warm-up frames only update the state.
+
+    With ``workers`` of 2 or more, that many upcoming frames are scored at
+    once (:func:`~fastdet.video.ahead.process_ahead`).
+    """
     converter = FrameConverter()
-    while True:
-        item = conveyor.get(inbox, clock)
-        if item is END:
-            break
-        index, frame = item
-        bgr = None
-        if debug_view or pipeline.wants_frame:
-            bgr = converter.to_bgr(frame, None if debug_view else rows)
-        try:
-            detections = pipeline.process(bgr)
-        except KeyboardInterrupt:
-            # Raised on this thread (e.g. by a callback of the caller's pipeline):
-            # a stop like Ctrl-C; the frames before it still reach the outputs.
-            stats.interrupted = stats.interrupted or signal.SIGINT
-            conveyor.stop()
-            break
-        if index < first_output:
-            continue
-        picture = _debug_view(bgr, detections, pipeline) if debug_view else None
-        for outbox in outboxes:
-            conveyor.put(outbox, (index, frame, picture, detections), clock)
+
+    def incoming():
+        while True:
+            item = conveyor.get(inbox, clock)
+            if item is END:
+                return
+            yield item
+
+    def to_bgr(item, wanted):
+        if debug_view or wanted:
+            return converter.to_bgr(item[1], None if debug_view else rows)
+        return None
+
+    results = process_ahead(pipeline, incoming(), 1 if debug_view else workers, to_bgr)
+    try:
+        for (index, frame), bgr, detections in results:
+            if index < first_output:
+                continue
+            picture = _debug_view(bgr, detections, pipeline) if debug_view else None
+            for outbox in outboxes:
+                conveyor.put(outbox, (index, frame, picture, detections), clock)
+    except KeyboardInterrupt:
+        # Raised on this thread (e.g. by a callback of the caller's pipeline):
+        # a stop like Ctrl-C; the frames before it still reach the outputs.
+        stats.interrupted = stats.interrupted or signal.SIGINT
+        conveyor.stop()
+    finally:
+        results.close()
     stats.full_searches = pipeline.full_searches
     for outbox in outboxes:
         conveyor.put(outbox, END, clock)

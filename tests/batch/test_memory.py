@@ -32,7 +32,7 @@ def page_faults_per_frame(frames=40):
 
 CHILD = """
 import json
-from fastdet.batch.memory import reuse_freed_frames
+from fastdet.video.memory import reuse_freed_frames
 from test_memory import page_faults_per_frame
 before = page_faults_per_frame()
 took = reuse_freed_frames()

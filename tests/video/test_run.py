@@ -220,3 +220,21 @@ def test_odd_sized_input_is_padded_through_the_pipeline(tmp_path, size):
     with VideoSource(tmp_path / "out.mp4") as video:
         assert video.size == (size[0] + size[0] % 2, size[1] + size[1] % 2)
         assert [frame_number(f[:size[1], :size[0]]) for f in video] == list(range(5))
+
+
+@pytest.mark.parametrize("track, cores", [({}, 4), ({"every": 3}, 8),
+                                         ({"every": 3, "tracking": True}, 8)],
+                         ids=["every frame", "every 3", "every 3 + tracking"])
+def test_frames_scored_at_once_equal_a_plain_loop(data_dir, detector, tmp_path, track, cores):
+    # Detections only on 4 cores (8 with --every 3, where decoding weighs
+    # more): 2 detector threads (tests/video/test_stages.py), which score two
+    # frames at once unless tracking needs them one at a time.
+    video = data_dir / "test_video.mp4"
+    expected = plain_loop(video, detector, TrackConfig(**track), tmp_path / "plain.jsonl")
+    notes = []
+    stats = process_video(video, None, VideoPipeline(detector, TrackConfig(**track)),
+                          detections=tmp_path / "piped.jsonl", threads=cores, log=notes.append)
+    assert (tmp_path / "piped.jsonl").read_text() == expected
+    at_once = 1 if track.get("tracking") else 2
+    assert stats.plan.detector == 2 and stats.plan.frames_at_once == at_once
+    assert ("2 frames at once" in notes[0]) == (at_once == 2), notes

@@ -1,0 +1,99 @@
+"""The video pipeline's throughput: threads sharing each frame, or scoring frames at once.
+
+``fastdet bench`` times :class:`~fastdet.video.pipeline.VideoPipeline` (the
+default ``[track]`` settings: every frame searched, heat smoothed, ids) over
+the benchmark's frames in two ways per thread count: a detector whose
+threads share each frame, and as many single-thread detectors scoring that
+many frames at once (:mod:`fastdet.video.ahead`).  Passes of all settings
+alternate (round-robin) and the median pass is kept, so a slow spell of a
+shared machine hits every setting alike.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from dataclasses import dataclass
+
+from ..detector.detector import Detector
+from ..video.config import TrackConfig
+from ..video.memory import reuse_freed_frames
+from ..video.pipeline import VideoPipeline
+
+
+@dataclass
+class PipelinePoint:
+    """Milliseconds per frame of one way of running the pipeline, median over passes."""
+
+    threads: int
+    frames_at_once: int
+    ms_per_frame: float
+    cpu_ms_per_frame: float
+
+
+def frame_level_study(frames, threads=(1, 2), rounds=3, model=None, config=None, log=print):
+    """Time the pipeline per thread count, threads per frame against frames at once.
+
+    Parameters
+    ----------
+    frames : list of ndarray
+        BGR frames of one size, processed in order as a video.
+    threads : sequence of int
+        Thread counts; 1 is always timed (the baseline).
+    rounds : int
+        Round-robin passes over all settings.
+    model, config
+        As for :class:`~fastdet.detector.detector.Detector`.
+
+    Returns
+    -------
+    list of PipelinePoint
+        One thread first, then per count above 1: threads sharing each
+        frame, then frames at once.
+    """
+    # Threads allocate frame-sized arrays in arenas of their own, which glibc
+    # trims and refaults every frame unless told otherwise (see
+    # fastdet.video.memory): frames at once cost 5-35 % more CPU without it.
+    reuse_freed_frames()
+    settings = [(1, 1)]
+    for count in sorted(set(threads) - {1}):
+        settings += [(count, 1), (count, count)]
+    pipelines = {}
+    for count, at_once in settings:
+        detector = Detector(model=model, config=config, threads=1 if at_once > 1 else count)
+        pipelines[count, at_once] = VideoPipeline(detector, TrackConfig())
+    wall = {key: [] for key in settings}
+    cpu = {key: [] for key in settings}
+    for round_index in range(rounds + 1):
+        if round_index:
+            log(f"pipeline round {round_index}/{rounds} ...")
+        for key in settings:
+            pipeline = pipelines[key]
+            pipeline.reset()
+            started, cpu_started = time.perf_counter(), time.process_time()
+            for _ in pipeline(frames, workers=key[1]):
+                pass
+            # Round 0 loads every kernel and fills every buffer: not kept.
+            if round_index:
+                wall[key].append((time.perf_counter() - started) / len(frames) * 1e3)
+                cpu[key].append((time.process_time() - cpu_started) / len(frames) * 1e3)
+    return [PipelinePoint(count, at_once, statistics.median(wall[count, at_once]),
+                          statistics.median(cpu[count, at_once]))
+            for count, at_once in settings]
+
+
+def format_frame_level(points):
+    """Markdown table of :func:`frame_level_study`, each row against one thread."""
+    base = next(p for p in points if p.threads == 1)
+    lines = ["| pipeline | ms per frame | CPU ms per frame | x faster than 1 thread |",
+             "|---|---:|---:|---:|"]
+    for point in points:
+        if point.threads == 1:
+            name = "1 thread"
+        elif point.frames_at_once > 1:
+            name = f"{point.threads} threads, {point.frames_at_once} frames at once"
+        else:
+            name = f"{point.threads} threads sharing each frame"
+        lines.append(f"| {name} | {point.ms_per_frame:.2f} | {point.cpu_ms_per_frame:.2f} "
+                     f"| {base.ms_per_frame / point.ms_per_frame:.2f}x |")
+    return "\n".join(lines)

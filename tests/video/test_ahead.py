@@ -1,0 +1,91 @@
+"""Tests for ``fastdet.video.ahead``: frames scored at once give a plain loop's results."""
+
+from __future__ import annotations
+
+import threading
+
+import cv2
+import numpy as np
+import pytest
+from video_stubs import BlockDetector, moving_block
+
+from fastdet.detector.detector import Detector
+from fastdet.errors import InputError
+from fastdet.video.ahead import can_look_ahead, process_ahead
+from fastdet.video.config import TrackConfig
+from fastdet.video.pipeline import VideoPipeline
+
+
+@pytest.fixture(scope="module")
+def frames(data_dir):
+    capture = cv2.VideoCapture(str(data_dir / "test_video.mp4"))
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            return frames
+        frames.append(frame)
+
+
+def results(pipeline, frames, workers):
+    return [(index, boxes.tolist(), ids.tolist())
+            for index, _, boxes, ids in pipeline(frames, workers=workers)]
+
+
+def helpers_alive():
+    return [t.name for t in threading.enumerate() if t.name.startswith("fastdet-frame")]
+
+
+@pytest.mark.parametrize("workers", [2, 3])
+@pytest.mark.parametrize("track", [{}, {"every": 3}, {"every": 4, "heat_smoothing": "fir"},
+                                   {"every": 2, "tracking": True}],
+                         ids=["every frame", "every 3", "every 4 fir", "every 2 tracking"])
+def test_same_results_as_one_frame_at_a_time(frames, track, workers):
+    expected = results(VideoPipeline(Detector(threads=1), TrackConfig(**track)), frames, 1)
+    assert sum(len(boxes) for _, boxes, _ in expected) > 30
+    got = results(VideoPipeline(Detector(threads=1), TrackConfig(**track)), frames, workers)
+    assert got == expected
+    assert helpers_alive() == []
+
+
+def test_searched_frames_are_scored_ahead_and_the_rest_not_looked_at(frames):
+    pipeline = VideoPipeline(Detector(threads=1), TrackConfig(every=3))
+    assert pipeline.searches_ahead(7) == [True, False, False, True, False, False, True]
+    wanted = []
+
+    def to_frame(index, want):
+        wanted.append(want)
+        return frames[index] if want else None
+
+    out = [item for item, frame, _ in process_ahead(pipeline, range(12), 2, to_frame)]
+    assert out == list(range(12))
+    assert wanted == [index % 3 == 0 for index in range(12)]
+    assert pipeline.full_searches == 4
+
+
+def test_tracking_and_other_detectors_go_one_frame_at_a_time():
+    block, _ = moving_block(3)
+    assert not can_look_ahead(VideoPipeline(Detector(threads=1), TrackConfig(tracking=True)))
+    stub = VideoPipeline(BlockDetector(), TrackConfig())
+    assert not can_look_ahead(stub)
+    assert len(list(process_ahead(stub, block, 2))) == 3
+
+
+def test_an_error_scoring_a_frame_ahead_is_raised_in_order(frames):
+    pipeline = VideoPipeline(Detector(threads=1), TrackConfig())
+    bad = list(frames[:6])
+    bad[4] = np.zeros((10, 10, 2), np.uint8)     # two channels: no frame
+    done = []
+    with pytest.raises(InputError):
+        for item, _, _ in process_ahead(pipeline, bad, 2):
+            done.append(item is bad[len(done)])
+    assert done == [True] * 4                     # every frame before it came out
+    assert helpers_alive() == []
+
+
+def test_closing_early_stops_the_helpers(frames):
+    generator = process_ahead(VideoPipeline(Detector(threads=1), TrackConfig()), frames, 3)
+    next(generator)
+    assert len(helpers_alive()) == 2
+    generator.close()
+    assert helpers_alive() == []
