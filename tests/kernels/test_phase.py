@@ -61,12 +61,16 @@ def test_phase_cells_of_merged_channels_hold_the_standard_cells():
     np.testing.assert_array_equal(phase, expected_phase(standard, 3, 1))
 
 
-def test_phase_cells_overwrite_a_dirty_buffer():
-    image = random_image(np.random.default_rng(1), (33, 70, 3), "uint8")
-    clean = cell_histograms(image, (8, 8), 9, phase_step=4, phase_pad=2)
-    dirty = np.full_like(clean, np.nan)
-    cell_histograms(image, (8, 8), 9, phase_step=4, phase_pad=2, out=dirty)
-    np.testing.assert_array_equal(dirty, clean)
+@pytest.mark.parametrize("shape", [(33, 70, 3), (17, 20, 1), (8, 9, 3), (24, 200, 3)])
+@pytest.mark.parametrize("step, pad", [(1, 0), (2, 2), (3, 1), (4, 2), (8, 3)])
+def test_phase_cells_overwrite_a_dirty_buffer(shape, step, pad):
+    # Positions no cell maps to (ends of short phases, padding; every phase
+    # past the cells when they are fewer than the step) come out zero.
+    image = random_image(np.random.default_rng(1), shape, "uint8")
+    standard = cell_histograms(image, (8, 8), 9)
+    dirty = np.full(phase_layout_shape(*standard.shape, step, pad), np.nan, np.float32)
+    cell_histograms(image, (8, 8), 9, phase_step=step, phase_pad=pad, out=dirty)
+    np.testing.assert_array_equal(dirty, expected_phase(standard, step, pad))
 
 
 @pytest.mark.parametrize("shape", [(7, 7, 3), (8, 3, 3), (3, 40, 3), (16, 8, 1)])
