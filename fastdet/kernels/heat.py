@@ -349,7 +349,9 @@ def decay_heat(state, heat, x0, y0, keep, weight):
     (``heat`` of shape ``(h, w)``), rounded as NumPy rounds those two
     statements in float32: the product, then the sum.  (In NumPy the decay
     is a pass over the whole map and the region's product a temporary of
-    its own: 0.33 ms on the search band of a 1280x720 frame.)
+    its own: 0.33 ms on the 1280x194 search band of a 1280x720 frame with a
+    900x150 region; the kernel cut the pipeline's temporal steps from 0.49
+    to 0.37 ms per test-video frame.)
 
     Parameters
     ----------

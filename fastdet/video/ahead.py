@@ -45,7 +45,8 @@ def process_ahead(pipeline, items, workers, to_frame=_as_is):
     ----------
     pipeline : VideoPipeline
         Its detector must be a :class:`Detector`; the workers are
-        single-thread detectors with its model and config.
+        single-thread detectors with its model and config (the calling
+        thread's is the pipeline's own detector if that has one thread).
     items : iterable
         In frame order.
     workers : int
@@ -71,8 +72,13 @@ def process_ahead(pipeline, items, workers, to_frame=_as_is):
             yield item, frame, pipeline.process(frame)
         return
     detector = pipeline.detector
-    detectors = [Detector(detector.model, detector.config, threads=1, preload=False)
-                 for _ in range(workers)]
+    # The calling thread scores with the pipeline's own detector when it is
+    # single-threaded (as fastdet run makes it for frames at once), else
+    # with one of its own; each helper thread has its own.
+    own = detector if detector.threads == 1 else None
+    detectors = [own or Detector(detector.model, detector.config, threads=1, preload=False)]
+    detectors += [Detector(detector.model, detector.config, threads=1, preload=False)
+                  for _ in range(workers - 1)]
     queue = _Lookahead()
     helpers = [threading.Thread(target=queue.score_ahead, args=(helper,), daemon=True,
                                 name=f"fastdet-frame-{k}")
