@@ -284,9 +284,16 @@ def _debug_view(frame, detections, pipeline):
     return debug_frame(frame, detections, heat, timings_ms, heat_max=scale)
 
 
-def decode(clock, conveyor, source, outbox, realtime, stats):
-    """Decoded frames onto ``outbox``; with ``realtime``, never wait: drop the oldest."""
+def decode(clock, conveyor, source, outbox, realtime, stats, rows=None):
+    """Decoded frames onto ``outbox``; with ``realtime``, never wait: drop the oldest.
+
+    With ``rows``, each frame's rows ``(y0, y1)`` are also converted to BGR
+    here (:class:`~fastdet.video.frame_arrays.FrameConverter`) and travel
+    with it: for runs that search every frame, where the detector's thread
+    bounds the run and this one has time to spare.
+    """
     frames = source.decoded_frames()
+    converter = FrameConverter() if rows is not None else None
     paced = realtime and not source.live
     started = first_pts = None
     try:
@@ -300,10 +307,11 @@ def decode(clock, conveyor, source, outbox, realtime, stats):
                 delay = started + float((frame.pts - first_pts) * source.time_base)
                 while not conveyor.stopping.is_set() and time.perf_counter() < delay:
                     time.sleep(min(0.01, delay - time.perf_counter()))
+            bgr = converter.to_bgr(frame, rows) if converter is not None else None
             if realtime:
-                stats.dropped += _put_newest(outbox, (index, frame))
+                stats.dropped += _put_newest(outbox, (index, frame, bgr))
             else:
-                conveyor.put(outbox, (index, frame), clock)
+                conveyor.put(outbox, (index, frame, bgr), clock)
     finally:
         frames.close()
     stats.ended = source.ended
@@ -341,13 +349,15 @@ def detect(clock, conveyor, inbox, outboxes, pipeline, rows, debug_view, first_o
             yield item
 
     def to_bgr(item, wanted):
+        if item[2] is not None:
+            return item[2]
         if debug_view or wanted:
             return converter.to_bgr(item[1], None if debug_view else rows)
         return None
 
     results = process_ahead(pipeline, incoming(), 1 if debug_view else workers, to_bgr)
     try:
-        for (index, frame), bgr, detections in results:
+        for (index, frame, _), bgr, detections in results:
             if index < first_output:
                 continue
             picture = _debug_view(bgr, detections, pipeline) if debug_view else None
