@@ -77,7 +77,8 @@ class _Frames:
         self._convert_all = convert_all
         self._rows = None if convert_all else pipeline.rows_read(reader.size)
         self._converter = FrameConverter()
-        self._frames = reader.decoded_frames()
+        self._frames = reader.decoded_frames(None if convert_all else
+                                             _needed_frames(pipeline, reader.start, guards))
 
     def __iter__(self):
         return self
@@ -86,6 +87,8 @@ class _Frames:
         frame = next(self._frames)
         index = self.index
         self.index += 1
+        if frame is None:   # left undecoded: neither searched nor guarded
+            return None
         if index in self._guards:
             bgr = self._converter.to_bgr(frame)
             self.digests[index] = frame_digest(bgr)
@@ -97,6 +100,16 @@ class _Frames:
     def last(self):
         """``(index, digest)`` of the last frame read (digest ``None`` unless guarded)."""
         return self.index - 1, self.digests.get(self.index - 1)
+
+
+def _needed_frames(pipeline, first, guards):
+    """``needed(index)`` for frames searched every N-th from ``first`` or guarded; ``None``
+    when the pipeline looks at every frame or cannot say ahead which."""
+    period = pipeline.config.search_period
+    if period is None or period < 2 or pipeline.searches_ahead(1) is None:
+        return None
+    first_search = first + pipeline.searches_ahead(period).index(True)
+    return lambda index: index in guards or (index - first_search) % period == 0
 
 
 class _Progress:

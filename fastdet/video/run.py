@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import signal
 import threading
 import time
@@ -59,6 +60,8 @@ class RunStats:
     interrupted: int | None = None
     #: Frames left out by ``realtime`` because processing fell behind.
     dropped: int = 0
+    #: Frames nothing looked at that stayed undecoded (:mod:`fastdet.video.skipping`).
+    undecoded: int = 0
     #: Why a live stream stopped (``None``: it ended normally).
     ended: str | None = None
     #: What was damaged in the input and skipped or concealed (``None``: nothing).
@@ -88,6 +91,8 @@ class RunStats:
         per_frame = ", ".join(f"{name} {ms:.1f}" for name, ms in self.cpu_ms_per_frame().items())
         head = "interrupted after " if self.interrupted else ""
         dropped = f", {self.dropped} dropped (--realtime)" if self.dropped else ""
+        if self.undecoded:
+            dropped += f" ({self.undecoded} not looked at left undecoded)"
         bound = self.times.bound()
         bound = f"; bound by {bound}" if bound and self.frames else ""
         written = "; wrote " + ", ".join(str(p) for p in outputs) if outputs else ""
@@ -166,6 +171,11 @@ def _signals(conveyor, stats):
 
 
 # -- the run ------------------------------------------------------------------------------
+def _on_schedule(first, period, index):
+    """Whether frame ``index`` is searched when every ``period``-th from ``first`` is."""
+    return (index - first) % period == 0
+
+
 def _settings(detector, config):
     """``(TrackConfig, DetectorConfig or None)`` from what :func:`process_video` was given."""
     if isinstance(detector, VideoPipeline):
@@ -327,7 +337,16 @@ def process_video(source, target=None, detector=None, config=None, callback=None
             # decoder's converts the searched rows instead (0.3-0.6 ms a frame).
             early_rows = (rows if rows is not None and period == 1 and not realtime
                           and not debug_view else None)
-            conveyor.add("decode", decode, conveyor, video, inbox, realtime, stats, early_rows)
+            # Searching every N-th frame with no video to write, the frames in
+            # between are only counted: those the codec allows stay undecoded.
+            needed = None
+            if (sink is None and rows is not None and period is not None and period > 1
+                    and not realtime and not debug_view):
+                # The pipeline's schedule, which a caller's pipeline may be into.
+                first_search = video.start + pipeline.searches_ahead(period).index(True)
+                needed = functools.partial(_on_schedule, first_search, period)
+            conveyor.add("decode", decode, conveyor, video, inbox, realtime, stats, early_rows,
+                         needed)
             conveyor.add("detect", detect, conveyor, inbox, outboxes, pipeline, rows, debug_view,
                          first_output, stats, plan.frames_at_once, inbox=inbox)
             total = video.expected_frames

@@ -29,6 +29,7 @@ from ..errors import InputError
 from .damage import InputDamage
 from .frame_arrays import FrameConverter
 from .seek import REORDER_SLACK, seek_point
+from .skipping import FrameSkipper
 
 #: Frame rate assumed when a video states none.
 FALLBACK_FPS = 25.0
@@ -162,6 +163,8 @@ class VideoSource:
         self.name = str(source)
         self.damage = InputDamage(self.name, strict)
         self.frames_read = 0
+        #: Frames :meth:`decoded_frames` left undecoded (its ``needed`` ruled them out).
+        self.frames_left_undecoded = 0
         self.start = int(start)
         self.end = None if end is None else int(end)
         if self.start < 0:
@@ -253,10 +256,15 @@ class VideoSource:
         """
         stream = self._stream
         packets = self._container.demux(stream)
+        skipper = self._skipper = FrameSkipper(stream.codec_context)
         while True:
             try:
                 packet = next(packets)
             except StopIteration:
+                # The packets held back, then the flush (an empty packet).
+                for frame in self._decode_packets(skipper.finished(), skipper):
+                    yield frame
+                yield from [None] * skipper.remaining()
                 return
             except (av.error.FFmpegError, OSError) as exc:
                 if self.live and self._index > 0 and isinstance(exc, (av.error.ExitError,
@@ -269,12 +277,21 @@ class VideoSource:
                                      f"{_reason(exc)}") from None
                 self.damage.ended_early(self._index - 1, _reason(exc))
                 return
+            yield from self._decode_packets(skipper.demuxed(packet), skipper)
+
+    def _decode_packets(self, packets, skipper):
+        """The frames of ``packets``, each after the placeholders (``None``) of the
+        frames left out before it (see :mod:`fastdet.video.skipping`)."""
+        stream = self._stream
+        for packet in packets:
             try:
                 frames = stream.decode(packet)
             except av.error.FFmpegError as exc:
+                skipper.stop()   # its frame is lost: the count is off from here
                 self.damage.undecodable_packet(self._index - 1, _reason(exc))
                 continue
             for frame in frames:
+                yield from [None] * skipper.decoded(frame)
                 if frame.is_corrupt and self._index >= self.start:
                     self.damage.corrupt_frame(self._index)
                 yield frame
@@ -339,11 +356,21 @@ class VideoSource:
             last = self.end if last is None else min(last, self.end)
         return None if last is None else max(last - self.start, 0)
 
-    def decoded_frames(self):
+    def decoded_frames(self, needed=None):
         """Yield the decoded ``av.VideoFrame`` objects in order (no conversion).
 
         A frame whose size differs from the first ends the stream with an
         :class:`InputError`; so does a read failure after the first frame.
+
+        Parameters
+        ----------
+        needed : callable, optional
+            ``needed(index) -> bool``: whether the caller looks at frame
+            ``index``.  Frames it does not need and no other frame is
+            predicted from may then stay undecoded, and ``None`` is yielded
+            in their place (files read strictly; see
+            :mod:`fastdet.video.skipping`).  Frames it needs are always
+            decoded, the same pixels as without it.
         """
         if self._container is None:
             raise InputError(f"{self.name} is closed")
@@ -352,9 +379,23 @@ class VideoSource:
             self._index += 1
             self.frames_read += 1
             yield first
+        if needed is not None and self.kind == "file":
+            self._skipper.start(needed, lambda: self._index)
         for frame in self._decoded:
             if self.end is not None and self._index >= self.end:
                 return
+            if frame is None:
+                if needed(self._index):
+                    # Only where the decoder lost frames of a damaged stream
+                    # after the skipping had counted them: damage like those.
+                    self.damage.undecodable_packet(self._index - 1, "a frame after lost ones "
+                                                   "was left undecoded")
+                    continue
+                self._index += 1
+                self.frames_read += 1
+                self.frames_left_undecoded += 1
+                yield None
+                continue
             if (frame.width, frame.height) != self.size:
                 raise InputError(f"{self.name}: the frame size changes from "
                                  f"{self.size[0]}x{self.size[1]} to {frame.width}x{frame.height} "

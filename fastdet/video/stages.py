@@ -284,15 +284,17 @@ def _debug_view(frame, detections, pipeline):
     return debug_frame(frame, detections, heat, timings_ms, heat_max=scale)
 
 
-def decode(clock, conveyor, source, outbox, realtime, stats, rows=None):
+def decode(clock, conveyor, source, outbox, realtime, stats, rows=None, needed=None):
     """Decoded frames onto ``outbox``; with ``realtime``, never wait: drop the oldest.
 
     With ``rows``, each frame's rows ``(y0, y1)`` are also converted to BGR
     here (:class:`~fastdet.video.frame_arrays.FrameConverter`) and travel
     with it: for runs that search every frame, where the detector's thread
-    bounds the run and this one has time to spare.
+    bounds the run and this one has time to spare.  With ``needed``
+    (``needed(index) -> bool``), frames nothing looks at may stay undecoded
+    and travel as ``None`` (:meth:`~fastdet.video.source.VideoSource.decoded_frames`).
     """
-    frames = source.decoded_frames()
+    frames = source.decoded_frames(needed)
     converter = FrameConverter() if rows is not None else None
     paced = realtime and not source.live
     started = first_pts = None
@@ -307,7 +309,8 @@ def decode(clock, conveyor, source, outbox, realtime, stats, rows=None):
                 delay = started + float((frame.pts - first_pts) * source.time_base)
                 while not conveyor.stopping.is_set() and time.perf_counter() < delay:
                     time.sleep(min(0.01, delay - time.perf_counter()))
-            bgr = converter.to_bgr(frame, rows) if converter is not None else None
+            bgr = (converter.to_bgr(frame, rows)
+                   if converter is not None and frame is not None else None)
             if realtime:
                 stats.dropped += _put_newest(outbox, (index, frame, bgr))
             else:
@@ -315,6 +318,7 @@ def decode(clock, conveyor, source, outbox, realtime, stats, rows=None):
     finally:
         frames.close()
     stats.ended = source.ended
+    stats.undecoded = source.frames_left_undecoded
     stats.damage = source.damage.describe(source.frames_read) or None
     conveyor.put(outbox, END, clock)
 
@@ -349,7 +353,7 @@ def detect(clock, conveyor, inbox, outboxes, pipeline, rows, debug_view, first_o
             yield item
 
     def to_bgr(item, wanted):
-        if item[2] is not None:
+        if item[2] is not None or item[1] is None:
             return item[2]
         if debug_view or wanted:
             return converter.to_bgr(item[1], None if debug_view else rows)

@@ -100,6 +100,51 @@ def test_segments_merge_into_the_whole_video(blocks_video, tmp_path):
         assert container.streams.video[0].frames == 90
 
 
+@pytest.fixture(scope="module")
+def blocks_video_b_frames(tmp_path_factory):
+    """The same 90 frames in H.264 with B-frames, which frames not searched may skip."""
+    path = tmp_path_factory.mktemp("job") / "blocks_b.mp4"
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("libx264", rate=10,
+                                      options={"preset": "medium", "bf": "3", "g": "30"})
+        stream.width, stream.height, stream.pix_fmt = 200, 120, "yuv420p"
+        for frame in two_blocks(90):
+            picture = av.VideoFrame.from_ndarray(frame, format="bgr24").reformat(format="yuv420p")
+            container.mux(stream.encode(picture))
+        container.mux(stream.encode(None))
+    return path
+
+
+def test_frames_left_undecoded_change_no_result(blocks_video_b_frames, tmp_path, monkeypatch):
+    from fastdet.batch import job
+
+    sources = []
+
+    class RecordedSource(VideoSource):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            sources.append(self)
+
+    monkeypatch.setattr(job, "VideoSource", RecordedSource)
+    settings = make_settings(every=3)
+    video = blocks_video_b_frames
+    whole = process_one(video, outputs(tmp_path, "whole", video=False), settings,
+                        detector=BlockDetector())
+    parts = [process_one(video, outputs(tmp_path, f"part{k}", video=False), settings,
+                         (start, end), warmup_frames=start, detector=BlockDetector())
+             for k, (start, end) in enumerate([(0, 45), (45, None)])]
+    assert whole["frames"] == 90 and all(s.frames_left_undecoded > 0 for s in sources)
+    verdict = compare(parts[0]["end_state"], parts[1]["start_state"], STUB_THRESHOLD, STUB_HEAT)
+    assert verdict.exact, verdict.reason
+    # Every frame decoded: the same detections, byte for byte.
+    monkeypatch.setattr(job, "_needed_frames", lambda *args: None)
+    process_one(video, outputs(tmp_path, "decoded", video=False), settings,
+                detector=BlockDetector())
+    assert sources[-1].frames_left_undecoded == 0
+    assert filecmp.cmp(tmp_path / "whole.jsonl", tmp_path / "decoded.jsonl", shallow=False)
+    assert "box" in (tmp_path / "whole.jsonl").read_text()
+
+
 def test_a_segment_past_the_end_is_empty(blocks_video, tmp_path):
     result = process_one(blocks_video, outputs(tmp_path, "late", video=False), make_settings(),
                          (95, None), warmup_frames=10, detector=BlockDetector())

@@ -79,6 +79,38 @@ def test_a_range_with_warm_up_frames_equals_the_loop_from_their_start(data_dir, 
     assert stats.frames == 10
 
 
+@pytest.fixture(scope="module")
+def b_frame_video(data_dir, tmp_path_factory):
+    """The test video again with B-frames (x264 medium), which it has none of."""
+    path = tmp_path_factory.mktemp("bframes") / "test_video_b.mp4"
+    with VideoSource(data_dir / "test_video.mp4") as video, \
+            av.open(str(path), "w") as container:
+        stream = container.add_stream("libx264", rate=video.rate,
+                                      options={"preset": "medium", "bf": "3", "crf": "18"})
+        stream.width, stream.height, stream.pix_fmt = *video.size, "yuv420p"
+        for frame in video.decoded_frames():
+            # A fresh frame: a decoded one carries its picture type, which x264 keeps.
+            fresh = av.VideoFrame.from_ndarray(frame.to_ndarray(), format="yuv420p")
+            container.mux(stream.encode(fresh))
+        container.mux(stream.encode(None))
+    return path
+
+
+@pytest.mark.parametrize("every", [2, 5])
+def test_frames_left_undecoded_change_no_detection(b_frame_video, detector, tmp_path, every):
+    track = TrackConfig(every=every)
+    expected = plain_loop(b_frame_video, detector, track, tmp_path / "plain.jsonl")
+    stats = process_video(b_frame_video, None, VideoPipeline(detector, track),
+                          detections=tmp_path / "piped.jsonl")
+    assert (tmp_path / "piped.jsonl").read_text() == expected
+    assert stats.frames == 38 and stats.undecoded > 0
+    assert f"{stats.undecoded} not looked at left undecoded" in stats.summary([])
+    # With a video to write, every frame is decoded.
+    stats = process_video(b_frame_video, tmp_path / "out.mp4", VideoPipeline(detector, track),
+                          detections=tmp_path / "piped.jsonl")
+    assert stats.undecoded == 0 and (tmp_path / "piped.jsonl").read_text() == expected
+
+
 def test_annotated_output_keeps_size_rate_and_timestamps(data_dir, detector, tmp_path):
     out = tmp_path / "out.mp4"
     process_video(data_dir / "test_video.mp4", out, VideoPipeline(detector), end=6)
