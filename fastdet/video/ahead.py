@@ -21,12 +21,36 @@ from __future__ import annotations
 
 import collections
 import threading
+import weakref
 
 from ..detector.detector import Detector
 
 #: Frames looked ahead per worker at most: a search period (``every``) longer
 #: than this scores fewer frames at once.
 MAX_PERIOD = 8
+
+# Helper detectors kept between runs, per pipeline detector: a new one's first
+# frame costs about 4 ms more than the next (its work arrays are made).
+_IDLE_HELPERS = weakref.WeakKeyDictionary()
+_HELPERS_LOCK = threading.Lock()
+
+
+def _borrow_helpers(detector, count):
+    """``count`` single-thread detectors with ``detector``'s model and config, idle
+    ones first; each is used by one run at a time (see :func:`_return_helpers`)."""
+    with _HELPERS_LOCK:
+        idle = _IDLE_HELPERS.get(detector, [])
+        same = [h for h in idle if h.model is detector.model and h.config == detector.config]
+        _IDLE_HELPERS[detector] = same[count:]   # helpers of an older config are dropped
+        helpers = same[:count]
+    helpers += [Detector(detector.model, detector.config, threads=1, preload=False)
+                for _ in range(count - len(helpers))]
+    return helpers
+
+
+def _return_helpers(detector, helpers):
+    with _HELPERS_LOCK:
+        _IDLE_HELPERS.setdefault(detector, []).extend(helpers)
 
 
 def can_look_ahead(pipeline):
@@ -76,9 +100,8 @@ def process_ahead(pipeline, items, workers, to_frame=_as_is):
     # single-threaded (as fastdet run makes it for frames at once), else
     # with one of its own; each helper thread has its own.
     own = detector if detector.threads == 1 else None
-    detectors = [own or Detector(detector.model, detector.config, threads=1, preload=False)]
-    detectors += [Detector(detector.model, detector.config, threads=1, preload=False)
-                  for _ in range(workers - 1)]
+    borrowed = _borrow_helpers(detector, workers - (own is not None))
+    detectors = ([own] if own is not None else []) + borrowed
     queue = _Lookahead()
     helpers = [threading.Thread(target=queue.score_ahead, args=(helper,), daemon=True,
                                 name=f"fastdet-frame-{k}")
@@ -116,6 +139,7 @@ def process_ahead(pipeline, items, workers, to_frame=_as_is):
         queue.close()
         for thread in helpers:
             thread.join()
+        _return_helpers(detector, borrowed)
 
 
 class _Entry:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 
 import cv2
@@ -89,3 +90,33 @@ def test_closing_early_stops_the_helpers(frames):
     assert len(helpers_alive()) == 2
     generator.close()
     assert helpers_alive() == []
+
+
+def test_helper_detectors_are_kept_for_the_next_run_of_the_same_settings(frames, monkeypatch):
+    made = []
+    original = Detector.__init__
+
+    def counted(self, *args, **kwargs):
+        made.append(self)
+        original(self, *args, **kwargs)
+
+    pipeline = VideoPipeline(Detector(threads=1))
+    monkeypatch.setattr(Detector, "__init__", counted)
+    first = results(pipeline, frames[:6], 3)
+    assert len(made) == 2                       # the calling thread scores with the pipeline's
+    pipeline.reset()
+    assert results(pipeline, frames[:6], 3) == first and len(made) == 2   # kept, reused
+    # Two runs at once on pipelines of one detector never share a helper.
+    other = VideoPipeline(pipeline.detector)
+    running = process_ahead(pipeline, frames[:6], 3)
+    next(running)
+    results(other, frames[:6], 3)
+    running.close()
+    assert len(made) == 4
+    # Another config: new helpers, with it.
+    config = pipeline.detector.config
+    pipeline.detector.config = dataclasses.replace(
+        config, heat=dataclasses.replace(config.heat, threshold=config.heat.threshold + 1))
+    pipeline.reset()
+    results(pipeline, frames[:6], 3)
+    assert len(made) == 6 and all(h.config == pipeline.detector.config for h in made[4:])
