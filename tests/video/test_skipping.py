@@ -58,6 +58,40 @@ def test_only_unneeded_frames_are_left_out_and_the_others_are_exact(request, cli
             assert np.array_equal(frame, everything[index]), index
 
 
+def _encode(path, codec, options, container_format=None, frames=60):
+    import av
+
+    from video_files import SIZE, numbered_frame
+
+    with av.open(str(path), "w", format=container_format) as container:
+        stream = container.add_stream(codec, rate=25, options=options)
+        stream.width, stream.height, stream.pix_fmt = *SIZE, "yuv420p"
+        for i in range(frames):
+            picture = av.VideoFrame.from_ndarray(numbered_frame(i), format="bgr24")
+            container.mux(stream.encode(picture.reformat(format="yuv420p")))
+        container.mux(stream.encode(None))
+    return path
+
+
+@pytest.mark.parametrize("name,codec,options,container_format", [
+    ("bf16.mp4", "libx264", {"preset": "veryfast", "bf": "16", "b_strategy": "0"}, None),
+    ("open_gop.mp4", "libx264", {"x264-params": "open-gop=1:keyint=12:bframes=3"}, None),
+    ("h264.mkv", "libx264", {"preset": "medium"}, None),
+    ("h264.ts", "libx264", {"preset": "medium"}, "mpegts"),
+    ("hevc.mp4", "libx265", {"preset": "ultrafast",
+                             "x265-params": "bframes=4:log-level=error"}, None),
+    ("mpeg4.avi", "mpeg4", {"bf": "2"}, None),
+], ids=lambda value: value if isinstance(value, str) and "." in value else "")
+def test_codecs_and_containers(tmp_path, name, codec, options, container_format):
+    path = _encode(tmp_path / name, codec, options, container_format)
+    needed = lambda index: index % 4 == 1  # noqa: E731
+    everything, _ = _decode(path)
+    some, left_out = _decode(path, needed, threads=2)
+    assert len(some) == len(everything) == 60 and left_out > 0
+    for index, frame in enumerate(some):
+        assert (frame is None and not needed(index)) or np.array_equal(frame, everything[index])
+
+
 def test_a_late_start_keeps_the_indices(b_frame_clip):
     start = 73   # past the seek threshold: decoding starts at the keyframe before it
     with VideoSource(b_frame_clip, start=start) as video:
