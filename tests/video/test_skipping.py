@@ -73,7 +73,8 @@ def _encode(path, codec, options, container_format=None, frames=60):
     return path
 
 
-@pytest.mark.parametrize("name,codec,options,container_format", [
+@pytest.mark.parametrize("name,codec,options,container_format", [pytest.param(*case, id=case[0])
+                                                                  for case in [
     ("bf16.mp4", "libx264", {"preset": "veryfast", "bf": "16", "b_strategy": "0"}, None),
     ("open_gop.mp4", "libx264", {"x264-params": "open-gop=1:keyint=12:bframes=3"}, None),
     ("h264.mkv", "libx264", {"preset": "medium"}, None),
@@ -81,7 +82,7 @@ def _encode(path, codec, options, container_format=None, frames=60):
     ("hevc.mp4", "libx265", {"preset": "ultrafast",
                              "x265-params": "bframes=4:log-level=error"}, None),
     ("mpeg4.avi", "mpeg4", {"bf": "2"}, None),
-], ids=lambda value: value if isinstance(value, str) and "." in value else "")
+]])
 def test_codecs_and_containers(tmp_path, name, codec, options, container_format):
     path = _encode(tmp_path / name, codec, options, container_format)
     needed = lambda index: index % 4 == 1  # noqa: E731
