@@ -21,7 +21,9 @@ later frame keeps its index.
 
 Anything that breaks the count turns the skipping off for the rest of the
 stream (every frame decoded, as without it): a packet without a timestamp,
-two with the same one, or a frame the decoder dropped on its own.
+two with the same one, or a frame the decoder dropped on its own.  On a
+damaged stream a packet left out is never found undecodable, so its frame
+keeps its place where decoding everything would have lost it.
 """
 
 from __future__ import annotations
