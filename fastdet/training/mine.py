@@ -62,13 +62,9 @@ def annotated_frames(source, annotations):
         if not wanted:
             return
         last = max(wanted)
-        index = -1
-
-        def unwanted():  # asked before frame index + 1: leave it unconverted
-            return index + 1 not in wanted
-
         with VideoSource(source) as video:
-            for index, frame in enumerate(video.frames(skip=unwanted)):
+            # Frames not annotated are not converted, and mostly not decoded.
+            for index, frame in enumerate(video.frames(needed=wanted.__contains__)):
                 if frame is not None and index in wanted:
                     yield wanted[index], frame
                 if index >= last:

@@ -412,7 +412,7 @@ class VideoSource:
         """Yield BGR uint8 frames of shape (height, width, 3), in order."""
         return self.frames()
 
-    def frames(self, skip=None):
+    def frames(self, skip=None, needed=None):
         """Yield the frames in order as BGR arrays, optionally without converting some.
 
         Parameters
@@ -421,16 +421,21 @@ class VideoSource:
             Called before each frame after the first; when it returns True the
             frame is decoded (the codec needs every frame) but not converted,
             and ``None`` is yielded in its place.
+        needed : callable, optional
+            ``needed(index) -> bool``: frames it rules out are not converted
+            and, where no other frame needs them, not decoded either (as in
+            :meth:`decoded_frames`); ``None`` is yielded in their place.
 
         Yields
         ------
         ndarray of uint8, shape (height, width, 3), or None
         """
         first_bgr = self.first_frame
-        for number, frame in enumerate(self.decoded_frames()):
+        for number, frame in enumerate(self.decoded_frames(needed)):
             if number == 0 and first_bgr is not None:
                 yield first_bgr
-            elif skip is not None and skip():
+            elif (frame is None or (skip is not None and skip())
+                  or (needed is not None and not needed(self._index - 1))):
                 yield None
             else:
                 yield self._converter.to_bgr(frame)

@@ -107,6 +107,19 @@ def test_a_late_start_keeps_the_indices(b_frame_clip):
             assert frame_number(bgr) == index
 
 
+def test_bgr_frames_of_the_needed_indices(b_frame_clip):
+    needed = lambda index: index % 6 == 2  # noqa: E731
+    with VideoSource(b_frame_clip) as video:
+        frames = list(video.frames(needed=needed))
+        left_out = video.frames_left_undecoded
+    assert len(frames) == FRAMES and left_out > 0
+    for index, frame in enumerate(frames):
+        if index == 0 or needed(index):
+            assert frame_number(frame) == index
+        else:
+            assert frame is None
+
+
 def test_a_stream_without_b_frames_decodes_everything(data_dir):
     # The test video has no pictures that nothing references.
     frames, left_out = _decode(data_dir / "test_video.mp4", lambda index: index % 5 == 0)
