@@ -424,7 +424,8 @@ class VideoSource:
         needed : callable, optional
             ``needed(index) -> bool``: frames it rules out are not converted
             and, where no other frame needs them, not decoded either (as in
-            :meth:`decoded_frames`); ``None`` is yielded in their place.
+            :meth:`decoded_frames`); ``None`` is yielded in their place.  The
+            first frame, read at opening, is always given.
 
         Yields
         ------
