@@ -36,7 +36,7 @@ COLD_RUNS = 3
 WARM_RUNS = 7
 
 #: The ``fastdet`` console script, run by this interpreter.
-_FASTDET = "import sys; from fastdet.cli import main; sys.exit(main(sys.argv[1:]))"
+_FASTDET = "import sys; from fastdet.cli import console_main; console_main(sys.argv[1:])"
 #: What every Numba + OpenCV program pays before its own code runs.
 _IMPORT_FLOOR = "import numpy, cv2, numba"
 

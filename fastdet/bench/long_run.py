@@ -123,7 +123,7 @@ def long_run_profile(video, every=ROW_EVERY, options=(), interval=0.05, log=None
     with tempfile.TemporaryDirectory(prefix="fastdet-long-run-") as folder:
         folder = Path(folder)
         out, dets = folder / "out.mp4", folder / "dets.jsonl"
-        command = [sys.executable, "-m", "fastdet.cli.app", "run", str(video), "--out", str(out),
+        command = [sys.executable, "-m", "fastdet.cli", "run", str(video), "--out", str(out),
                    "--detections", str(dets), "--quiet", *options]
         samples, temporary, last, counter = [], None, None, _LineCounter()
         started = time.perf_counter()

@@ -167,7 +167,7 @@ def fastdet_run(path, options, threads=None, folder=None):
     """One ``fastdet run`` process over ``path``; its :class:`ProcessRun` and parsed summary."""
     folder = Path(folder or tempfile.mkdtemp(prefix="fastdet-bench-"))
     arguments = [a.format(out=folder / "out.mp4", dets=folder / "dets.jsonl") for a in options]
-    command = [sys.executable, "-m", "fastdet.cli.app", "run", str(path), *arguments, "--quiet"]
+    command = [sys.executable, "-m", "fastdet.cli", "run", str(path), *arguments, "--quiet"]
     if threads:
         command += ["--threads", str(threads)]
     run = run_process(command)

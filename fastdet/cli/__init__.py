@@ -5,10 +5,39 @@ Nothing outside this package imports it; it imports the library below.
 
 
 def main(argv=None):
-    """Entry point of the ``fastdet`` console script; returns the exit code.
+    """Run one ``fastdet`` command; returns the exit code.
 
     See :func:`fastdet.cli.app.main`.
     """
     from .app import main as run_command
 
     return run_command(argv)
+
+
+def console_main(argv=None):
+    """Entry point of the ``fastdet`` console script: :func:`main`, then the end of the process.
+
+    Every command has closed its outputs when it returns; what Python would
+    still do is tear the interpreter down, module by module, and with
+    Numba's compiled kernels loaded that took 0.15-0.23 s (AMD EPYC Zen 3:
+    0.06 s after importing numpy, OpenCV and Numba alone), as long as a
+    hundred frames' detection.  So the process ends the way Python's own
+    shutdown begins (other threads joined, exit handlers run: logging
+    flushed, temporary cache folders removed), the standard streams are
+    flushed, and then it exits without the teardown.
+    """
+    import atexit
+    import os
+    import sys
+    import threading
+
+    code = main(argv)
+    code = 0 if code is None else int(code)
+    try:
+        threading._shutdown()      # what Py_FinalizeEx does first: join non-daemon threads
+        atexit._run_exitfuncs()
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except BaseException:  # noqa: BLE001 - e.g. a closed pipe: Python's own exit reports it
+        sys.exit(code)
+    os._exit(code)

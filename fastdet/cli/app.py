@@ -146,6 +146,3 @@ def _main(argv):
             logging.getLogger("fastdet").info(cache.summary())
             logging.getLogger("fastdet").removeHandler(handler)
 
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "fastdet"
 #: The fastdet command, run by this interpreter.
 FASTDET = [sys.executable, "-c",
-           "import sys; from fastdet.cli import main; sys.exit(main(sys.argv[1:]))"]
+           "import sys; from fastdet.cli import console_main; console_main(sys.argv[1:])"]
 
 
 @pytest.fixture(scope="module")

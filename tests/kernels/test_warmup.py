@@ -70,8 +70,8 @@ def test_cold_families_compiled_by_two_processes(tmp_path):
     """With an empty cache, ``fastdet warmup`` compiles half the families in a helper
     process; a second run finds them all in the cache."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    command = [sys.executable, "-c", "import sys; from fastdet.cli import main; "
-               "sys.exit(main(sys.argv[1:]))", "warmup", "--families", "convert", "heat",
+    command = [sys.executable, "-c", "import sys; from fastdet.cli import console_main; "
+               "console_main(sys.argv[1:])", "warmup", "--families", "convert", "heat",
                "--processes", "2"]
     first = subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
     assert first.returncode == 0, first.stderr[-3000:]

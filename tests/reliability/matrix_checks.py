@@ -25,7 +25,7 @@ from filesystems import read_only, tiny_filesystem
 
 ROOT = Path(__file__).resolve().parents[2]
 FASTDET = [sys.executable, "-c",
-           "import sys; from fastdet.cli import main; sys.exit(main(sys.argv[1:]))"]
+           "import sys; from fastdet.cli import console_main; console_main(sys.argv[1:])"]
 #: Lines besides the error a command may print on stderr: the notice that
 #: kernels are compiling, and the progress lines of training and tuning.
 NOTICE = re.compile(r"^(fastdet: compiling kernels|\d+ crops \(|features: |random split: |"

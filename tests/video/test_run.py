@@ -193,8 +193,8 @@ import sys, time
 from fastdet.video.pipeline import VideoPipeline
 process = VideoPipeline.process
 VideoPipeline.process = lambda self, frame: time.sleep(0.1) or process(self, frame)
-from fastdet.cli.app import main
-sys.exit(main(sys.argv[1:]))
+from fastdet.cli import console_main
+console_main(sys.argv[1:])
 """
 
 

@@ -85,7 +85,7 @@ def temporary_of(folder, name):
 def signal_at_frame(video, folder, signum, at_frame, timeout=300):
     """Run ``fastdet run`` on ``video``; send ``signum`` once ``at_frame`` frames are done."""
     out, dets = folder / "out.mp4", folder / "dets.jsonl"
-    command = [sys.executable, "-m", "fastdet.cli.app", "run", str(video), "--out", str(out),
+    command = [sys.executable, "-m", "fastdet.cli", "run", str(video), "--out", str(out),
                "--detections", str(dets), *OPTIONS]
     started = time.monotonic()
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -149,7 +149,7 @@ def test_signals_at_random_frames_leave_complete_outputs(quick_loop, tmp_path):
 
 def test_a_killed_run_leaves_temporaries_the_next_run_removes(quick_loop, tmp_path):
     out, dets = tmp_path / "out.mp4", tmp_path / "dets.jsonl"
-    command = [sys.executable, "-m", "fastdet.cli.app", "run", str(quick_loop), "--out",
+    command = [sys.executable, "-m", "fastdet.cli", "run", str(quick_loop), "--out",
                str(out), "--detections", str(dets), *OPTIONS]
     process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL)
