@@ -75,7 +75,9 @@ def measure(cold_runs=COLD_RUNS, warm_runs=WARM_RUNS):
         for _ in range(warm_runs):
             floor.append(run_seconds(_IMPORT_FLOOR, (), cache))
             warm.append(run_seconds(_FASTDET, ("detect", image), cache))
-    median = lambda pairs, k: statistics.median(pair[k] for pair in pairs)  # noqa: E731
+    # No cold runs asked for (``0``): no cold figure.
+    median = lambda pairs, k: (statistics.median(pair[k] for pair in pairs)  # noqa: E731
+                               if pairs else None)
     above = lambda k: statistics.median(w[k] - f[k] for w, f in zip(warm, floor))  # noqa: E731
     return {"cold": median(cold, 0), "cold_cpu": median(cold, 1),
             "warm": median(warm, 0), "import_floor": median(floor, 0),
