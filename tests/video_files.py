@@ -118,3 +118,18 @@ def top_level_boxes(path):
         boxes.append(kind.decode("latin-1"))
         offset += size if size else len(data)
     return boxes
+
+
+def record_sources(monkeypatch, module):
+    """Make ``module.VideoSource`` keep every source it opens; returns the list they go to."""
+    from fastdet.video.source import VideoSource
+
+    sources = []
+
+    class RecordedSource(VideoSource):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            sources.append(self)
+
+    monkeypatch.setattr(module, "VideoSource", RecordedSource)
+    return sources

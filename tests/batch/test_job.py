@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 from batch_stubs import STUB_HEAT, STUB_THRESHOLD, two_blocks
+from video_files import record_sources
 from video_stubs import BlockDetector, bundled_model_path
 
 from fastdet.batch.boundary import IdMap, compare
@@ -118,14 +119,7 @@ def blocks_video_b_frames(tmp_path_factory):
 def test_frames_left_undecoded_change_no_result(blocks_video_b_frames, tmp_path, monkeypatch):
     from fastdet.batch import job
 
-    sources = []
-
-    class RecordedSource(VideoSource):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            sources.append(self)
-
-    monkeypatch.setattr(job, "VideoSource", RecordedSource)
+    sources = record_sources(monkeypatch, job)
     settings = make_settings(every=3)
     video = blocks_video_b_frames
     whole = process_one(video, outputs(tmp_path, "whole", video=False), settings,

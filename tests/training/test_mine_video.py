@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 from fastdet.training.mine import annotated_frames
-from fastdet.video.source import VideoSource
-from video_files import frame_number, write_clip
+from video_files import frame_number, record_sources, write_clip
 
 
 def test_annotated_frames_of_a_video_are_those_frames(tmp_path, monkeypatch):
@@ -12,14 +11,7 @@ def test_annotated_frames_of_a_video_are_those_frames(tmp_path, monkeypatch):
 
     path = write_clip(tmp_path / "b.mp4", 80, fps=25.0,
                       options={"preset": "medium", "g": "12", "bf": "3"})
-    sources = []
-
-    class RecordedSource(VideoSource):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            sources.append(self)
-
-    monkeypatch.setattr(mine, "VideoSource", RecordedSource)
+    sources = record_sources(monkeypatch, mine)
     annotations = {"frame3": [], "frame0010": [], "frame57": [], "frame61": [], "test1.jpg": []}
     got = {key: frame_number(frame) for key, frame in annotated_frames(path, annotations)}
     assert got == {"frame3": 3, "frame0010": 10, "frame57": 57, "frame61": 61}
