@@ -35,6 +35,15 @@ import collections
 LOOKAHEAD = 17
 
 
+class LeftOut:
+    """Stands in for a frame left undecoded, at its timestamp ``pts``."""
+
+    __slots__ = ("pts",)
+
+    def __init__(self, pts):
+        self.pts = pts
+
+
 class FrameSkipper:
     """Decides, packet by packet, which frames may stay undecoded.
 
@@ -48,22 +57,27 @@ class FrameSkipper:
     Use: :meth:`demuxed` for each packet as it is read (which returns the
     packets to decode now), :meth:`decoded` for each frame the decoder gives
     (placeholders to yield before it), :meth:`finished` at the end.
-    Skipping starts once :meth:`start` is given the frames that are needed.
+    Skipping starts once :meth:`start` is given the frames that are needed,
+    or :meth:`skip_before` a timestamp (the frames a seek decodes on its way
+    to the first one wanted).
     """
 
     def __init__(self, codec_context):
         self._context = codec_context
         self._needed = None
         self._next_index = None
+        self._before = None
         self._waiting = collections.deque()   # demuxed, not yet sent to the decoder
         self._pending = []                    # sorted pts of frames not out yet
         self._left_out = set()                # pts sent with skip_frame = NONREF
         self._broken = False
+        #: Placeholders given so far.
+        self.left_out = 0
 
     @property
     def active(self):
         """Whether frames are being left out."""
-        return self._needed is not None and not self._broken
+        return (self._needed is not None or self._before is not None) and not self._broken
 
     def start(self, needed, next_index):
         """Leave out frames for which ``needed(index)`` is false, from now on.
@@ -75,7 +89,16 @@ class FrameSkipper:
         next_index : callable
             The index of the next frame :meth:`decoded` will see.
         """
-        self._needed, self._next_index = needed, next_index
+        self._needed, self._next_index, self._before = needed, next_index, None
+
+    def skip_before(self, pts):
+        """Leave out frames shown before timestamp ``pts``, from now on."""
+        self._needed, self._before = None, pts
+
+    def decode_all(self):
+        """Leave no more frames out (those already left out still get their placeholders)."""
+        self._needed = self._before = None
+        self._context.skip_frame = "DEFAULT"
 
     def stop(self):
         """Decode every frame from now on (placeholders still given for those left out)."""
@@ -108,19 +131,23 @@ class FrameSkipper:
     def _prepare(self, packet):
         skip = False
         if self.active and packet.pts is not None and packet.size:
-            index = self._next_index() + bisect.bisect_left(self._pending, packet.pts)
-            skip = not self._needed(index)
+            if self._needed is not None:
+                index = self._next_index() + bisect.bisect_left(self._pending, packet.pts)
+                skip = not self._needed(index)
+            else:
+                skip = packet.pts < self._before
         self._context.skip_frame = "NONREF" if skip else "DEFAULT"
         if skip:
             self._left_out.add(packet.pts)
         return packet
 
     def decoded(self, frame):
-        """Placeholders (``None``) to yield before ``frame``: the frames left out before it."""
+        """Placeholders (:class:`LeftOut`) to yield before ``frame``: the frames left out
+        before it."""
         pts = frame.pts
         if pts is None:
             self.stop()
-            return 0
+            return []
         return self._release(lambda earlier: earlier <= pts, pts)
 
     def remaining(self):
@@ -128,7 +155,7 @@ class FrameSkipper:
         return self._release(lambda earlier: True, None)
 
     def _release(self, before, shown):
-        placeholders = 0
+        placeholders = []
         while self._pending and before(self._pending[0]):
             earlier = self._pending.pop(0)
             if earlier == shown:
@@ -136,8 +163,9 @@ class FrameSkipper:
                 break
             if earlier in self._left_out:
                 self._left_out.discard(earlier)
-                placeholders += 1
-            elif shown is not None and self.active:
+                placeholders.append(LeftOut(earlier))
+            elif shown is not None and self._needed is not None and not self._broken:
                 # The decoder dropped a frame by itself: later indices are off.
                 self.stop()
+        self.left_out += len(placeholders)
         return placeholders

@@ -29,7 +29,7 @@ from ..errors import InputError
 from .damage import InputDamage
 from .frame_arrays import FrameConverter
 from .seek import REORDER_SLACK, seek_point
-from .skipping import FrameSkipper
+from .skipping import FrameSkipper, LeftOut
 
 #: Frame rate assumed when a video states none.
 FALLBACK_FPS = 25.0
@@ -203,7 +203,12 @@ class VideoSource:
         except BaseException:
             self._container.close()
             raise
-        self._decoded = self._frames_from_container()
+        self._restart_decoding()
+
+    def _restart_decoding(self):
+        """Decode from the container's position on, with a new :class:`FrameSkipper`."""
+        self._skipper = FrameSkipper(self._stream.codec_context)
+        self._decoded = self._frames_from_container(self._skipper)
 
     def _check_file(self):
         path = self.path
@@ -247,7 +252,7 @@ class VideoSource:
         #: Why a live stream ended (``None`` while it runs, and for files).
         self.ended = None
 
-    def _frames_from_container(self):
+    def _frames_from_container(self, skipper):
         """Decoded frames in order; damage recorded (or raised when strict), read failures
         turned into :class:`InputError`.
 
@@ -256,15 +261,13 @@ class VideoSource:
         """
         stream = self._stream
         packets = self._container.demux(stream)
-        skipper = self._skipper = FrameSkipper(stream.codec_context)
         while True:
             try:
                 packet = next(packets)
             except StopIteration:
                 # The packets held back, then the flush (an empty packet).
-                for frame in self._decode_packets(skipper.finished(), skipper):
-                    yield frame
-                yield from [None] * skipper.remaining()
+                yield from self._decode_packets(skipper.finished(), skipper)
+                yield from skipper.remaining()
                 return
             except (av.error.FFmpegError, OSError) as exc:
                 if self.live and self._index > 0 and isinstance(exc, (av.error.ExitError,
@@ -280,8 +283,9 @@ class VideoSource:
             yield from self._decode_packets(skipper.demuxed(packet), skipper)
 
     def _decode_packets(self, packets, skipper):
-        """The frames of ``packets``, each after the placeholders (``None``) of the
-        frames left out before it (see :mod:`fastdet.video.skipping`)."""
+        """The frames of ``packets``, each after the placeholders
+        (:class:`~fastdet.video.skipping.LeftOut`) of the frames left out before
+        it (see :mod:`fastdet.video.skipping`)."""
         stream = self._stream
         for packet in packets:
             try:
@@ -291,7 +295,7 @@ class VideoSource:
                 self.damage.undecodable_packet(self._index - 1, _reason(exc))
                 continue
             for frame in frames:
-                yield from [None] * skipper.decoded(frame)
+                yield from skipper.decoded(frame)
                 if frame.is_corrupt and self._index >= self.start:
                     self.damage.corrupt_frame(self._index)
                 yield frame
@@ -305,9 +309,12 @@ class VideoSource:
                 return frame
             self._container.close()   # decode from the beginning instead
             self._open()
+        if self.kind == "file" and self.start > 0:
+            # The frames before the first wanted: as few decoded as can be.
+            self._skipper.start(lambda index: index >= self.start, lambda: self._index)
         for frame in self._decoded:
             if self._index == self.start:
-                return frame
+                return frame   # never left out: it is needed
             self._index += 1
         if self.start == 0:
             raise InputError(f"{self.name} holds no frames")
@@ -324,7 +331,10 @@ class VideoSource:
                                  any_frame=False)
         except (av.error.FFmpegError, OSError):
             return None
-        self._decoded = self._frames_from_container()
+        self._restart_decoding()
+        # The frames before the wanted one, as few decoded as can be; their
+        # placeholders (LeftOut) carry the timestamps checked below.
+        self._skipper.skip_before(point.expected_pts[self.start - point.keyframe_index])
         expected = iter(point.expected_pts)
         index = point.keyframe_index
         for frame in self._decoded:
@@ -381,11 +391,13 @@ class VideoSource:
             yield first
         if needed is not None and self.kind == "file":
             self._skipper.start(needed, lambda: self._index)
+        else:
+            self._skipper.decode_all()
         for frame in self._decoded:
             if self.end is not None and self._index >= self.end:
                 return
-            if frame is None:
-                if needed(self._index):
+            if isinstance(frame, LeftOut):
+                if needed is None or needed(self._index):
                     # Only where the decoder lost frames of a damaged stream
                     # after the skipping had counted them: damage like those.
                     self.damage.undecodable_packet(self._index - 1, "a frame after lost ones "

@@ -107,6 +107,24 @@ def test_a_late_start_keeps_the_indices(b_frame_clip):
             assert frame_number(bgr) == index
 
 
+@pytest.mark.parametrize("start,seek", [(30, True), (83, True), (100, False)],
+                         ids=["before the seek threshold", "after a seek", "seek refused"])
+def test_frames_before_the_start_are_left_out_on_the_way(b_frame_clip, start, seek,
+                                                          monkeypatch):
+    from fastdet.video import source as source_module
+
+    if not seek:   # the seek cannot be checked: decoded from the beginning
+        monkeypatch.setattr(source_module, "seek_point", lambda *args: None)
+    with VideoSource(b_frame_clip) as video:
+        everything = [_planes(frame) for frame in video.decoded_frames()]
+    with VideoSource(b_frame_clip, start=start) as video:
+        frames = [_planes(frame) for frame in video.decoded_frames()]
+        left_out = video._skipper.left_out
+    assert left_out > 0 and video.frames_left_undecoded == 0
+    assert len(frames) == FRAMES - start
+    assert all(np.array_equal(a, b) for a, b in zip(frames, everything[start:]))
+
+
 def test_bgr_frames_of_the_needed_indices(b_frame_clip):
     needed = lambda index: index % 6 == 2  # noqa: E731
     with VideoSource(b_frame_clip) as video:
@@ -179,9 +197,9 @@ def test_placeholders_come_before_the_next_frame_shown():
     for pts in (0, 3, 1, 2):
         list(skipper.demuxed(_packet(pts)))
     list(skipper.finished())
-    assert skipper.decoded(SimpleNamespace(pts=0)) == 0
-    assert skipper.decoded(SimpleNamespace(pts=3)) == 2   # frames 1 and 2 left out
-    assert skipper.remaining() == 0
+    assert skipper.decoded(SimpleNamespace(pts=0)) == []
+    assert [p.pts for p in skipper.decoded(SimpleNamespace(pts=3))] == [1, 2]   # left out
+    assert skipper.remaining() == [] and skipper.left_out == 2
 
 
 def test_a_frame_the_decoder_drops_by_itself_stops_the_skipping():
@@ -192,10 +210,10 @@ def test_a_frame_the_decoder_drops_by_itself_stops_the_skipping():
     list(skipper.finished())
     # Frame 1 was left out and its placeholder comes before frame 2; then frame 3,
     # sent to be decoded, never comes out: the indices after it cannot be trusted.
-    assert skipper.decoded(SimpleNamespace(pts=0)) == 0
-    assert skipper.decoded(SimpleNamespace(pts=2)) == 1 and skipper.active
+    assert skipper.decoded(SimpleNamespace(pts=0)) == []
+    assert len(skipper.decoded(SimpleNamespace(pts=2))) == 1 and skipper.active
     list(skipper.demuxed(_packet(4)))
     list(skipper.demuxed(_packet(3)))
     list(skipper.finished())
-    assert skipper.decoded(SimpleNamespace(pts=4)) == 0   # 3 was to be decoded: dropped
+    assert skipper.decoded(SimpleNamespace(pts=4)) == []   # 3 was to be decoded: dropped
     assert not skipper.active
