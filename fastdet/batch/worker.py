@@ -17,11 +17,13 @@ not retried; anything else propagates, and Dask retries the task.
 from __future__ import annotations
 
 import asyncio
+import os
 import tempfile
 import threading
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 from distributed import get_worker
 from distributed.diagnostics.plugin import WorkerPlugin
@@ -72,6 +74,7 @@ class BatchSetup(WorkerPlugin):
         if self.model is not None:
             return
         start = time.perf_counter()
+        adopt_thread_count()
         reuse_freed_frames()
         with tempfile.TemporaryDirectory(prefix="fastdet-model-") as folder:
             path = Path(folder) / "model.npz"
@@ -88,6 +91,22 @@ class BatchSetup(WorkerPlugin):
             detector = self._local.detector = Detector(
                 self.model, self.settings.detector_config, threads=self.settings.threads)
         return detector
+
+
+def adopt_thread_count():
+    """Let Numba take ``NUMBA_NUM_THREADS`` from the environment now, before its threads start.
+
+    A worker process that Dask's nanny spawns from a script which imports
+    fastdet (the ``fastdet`` console script does) imports Numba while it
+    loads that script, before the nanny sets the worker's environment: Numba
+    then sizes its thread pool for every core, and the first kernel compiled
+    after the pool started (a cold cache) failed on the changed variable.
+    If the pool already runs, the variable is set back to its size instead.
+    """
+    try:
+        numba.core.config.reload_config()
+    except RuntimeError:   # the pool was started before: keep its size
+        os.environ["NUMBA_NUM_THREADS"] = str(numba.config.NUMBA_NUM_THREADS)
 
 
 def _setup(name):
