@@ -51,6 +51,9 @@ class FrameSkipper:
     ----------
     codec_context : av.CodecContext
         The stream's decoder; its ``skip_frame`` is set before each packet.
+    enabled : bool
+        ``False`` for a source that is never skipped in (a live stream): no
+        timestamps are kept, however long it runs.
 
     Notes
     -----
@@ -62,7 +65,7 @@ class FrameSkipper:
     to the first one wanted).
     """
 
-    def __init__(self, codec_context):
+    def __init__(self, codec_context, enabled=True):
         self._context = codec_context
         self._needed = None
         self._next_index = None
@@ -70,7 +73,7 @@ class FrameSkipper:
         self._waiting = collections.deque()   # demuxed, not yet sent to the decoder
         self._pending = []                    # sorted pts of frames not out yet
         self._left_out = set()                # pts sent with skip_frame = NONREF
-        self._broken = False
+        self._broken = not enabled
         #: Placeholders given so far.
         self.left_out = 0
 
@@ -111,7 +114,9 @@ class FrameSkipper:
         Each is given its ``skip_frame`` setting as it is yielded: decode it
         before asking for the next.
         """
-        if packet.pts is None or packet.size == 0:
+        if self._broken and not self._left_out:
+            self._pending.clear()   # nothing left to place: no timestamps to keep
+        elif packet.pts is None or packet.size == 0:
             if packet.size:
                 self.stop()   # a frame without a timestamp: the count cannot be kept
         else:

@@ -207,7 +207,7 @@ class VideoSource:
 
     def _restart_decoding(self):
         """Decode from the container's position on, with a new :class:`FrameSkipper`."""
-        self._skipper = FrameSkipper(self._stream.codec_context)
+        self._skipper = FrameSkipper(self._stream.codec_context, enabled=self.kind == "file")
         self._decoded = self._frames_from_container(self._skipper)
 
     def _check_file(self):
@@ -378,9 +378,9 @@ class VideoSource:
             ``needed(index) -> bool``: whether the caller looks at frame
             ``index``.  Frames it does not need and no other frame is
             predicted from may then stay undecoded, and ``None`` is yielded
-            in their place (files read strictly; see
-            :mod:`fastdet.video.skipping`).  Frames it needs are always
-            decoded, the same pixels as without it.
+            in their place (files only; see :mod:`fastdet.video.skipping`).
+            Frames it needs are always decoded, the same pixels as without
+            it.
         """
         if self._container is None:
             raise InputError(f"{self.name} is closed")

@@ -217,3 +217,13 @@ def test_a_frame_the_decoder_drops_by_itself_stops_the_skipping():
     list(skipper.finished())
     assert skipper.decoded(SimpleNamespace(pts=4)) == []   # 3 was to be decoded: dropped
     assert not skipper.active
+
+
+def test_a_live_source_keeps_no_timestamps_however_long_it_runs():
+    skipper = FrameSkipper(_Decoder(), enabled=False)
+    skipper.start(lambda index: False, lambda: 0)
+    assert not skipper.active
+    for pts in range(10_000):
+        assert [p.pts for p in skipper.demuxed(_packet(pts))] == [pts]   # none held back
+        assert skipper.decoded(SimpleNamespace(pts=None if pts % 7 else pts)) == []
+    assert skipper._pending == [] and skipper.left_out == 0
