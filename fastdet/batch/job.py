@@ -103,13 +103,12 @@ class _Frames:
 
 
 def _needed_frames(pipeline, first, guards):
-    """``needed(index)`` for frames searched every N-th from ``first`` or guarded; ``None``
-    when the pipeline looks at every frame or cannot say ahead which."""
-    period = pipeline.config.search_period
-    if period is None or period < 2 or pipeline.searches_ahead(1) is None:
+    """``needed(index)``: the frames the pipeline searches from ``first`` on, and the
+    guarded ones; ``None`` when it looks at every frame or cannot say ahead which."""
+    searched = pipeline.frames_needed(first)
+    if searched is None:
         return None
-    first_search = first + pipeline.searches_ahead(period).index(True)
-    return lambda index: index in guards or (index - first_search) % period == 0
+    return lambda index: index in guards or searched(index)
 
 
 class _Progress:

@@ -56,8 +56,12 @@ def track_annotated_frames(pipeline, video, names):
         return out
     last = max(wanted)
     pipeline.reset()
+    needed = pipeline.frames_needed(0)
     with VideoSource(video) as source:
-        for index, frame in enumerate(source):
+        # Frames between searches are not converted, and mostly not decoded.
+        frames = (source.frames(skip=lambda: not pipeline.wants_frame) if needed is None
+                  else source.frames(needed=needed))
+        for index, frame in enumerate(frames):
             detections = pipeline.process(frame)
             if index in wanted:
                 out[wanted[index]] = detections

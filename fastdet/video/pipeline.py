@@ -37,6 +37,7 @@ One frame goes through these steps:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 
@@ -65,6 +66,11 @@ class _Stopwatch:
         result = method(*args)
         self.seconds += time.perf_counter() - start
         return result
+
+
+def _on_schedule(first, period, index):
+    """Whether frame ``index`` is searched when every ``period``-th from ``first`` is."""
+    return (index - first) % period == 0
 
 
 def hits_outside(hits, boxes):
@@ -200,6 +206,20 @@ class VideoPipeline:
         period = self.config.search_period
         return self._since_full is None or (period is not None
                                             and self._since_full + 1 >= period)
+
+    def frames_needed(self, first):
+        """``needed(index) -> bool``: the frames :meth:`process` will look at, the next
+        frame given to it being frame ``first``.
+
+        ``None`` when it looks at every frame, or when that is not known
+        ahead (tracking).  Readers leave the others undecoded where they can
+        (:meth:`fastdet.video.source.VideoSource.decoded_frames`).
+        """
+        period = self.config.search_period
+        due = self.searches_ahead(period) if period is not None and period > 1 else None
+        if due is None:
+            return None
+        return functools.partial(_on_schedule, first + due.index(True), period)
 
     def searches_ahead(self, count):
         """Whether each of the next ``count`` frames will be fully searched, or ``None``.

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import functools
 import signal
 import threading
 import time
@@ -171,11 +170,6 @@ def _signals(conveyor, stats):
 
 
 # -- the run ------------------------------------------------------------------------------
-def _on_schedule(first, period, index):
-    """Whether frame ``index`` is searched when every ``period``-th from ``first`` is."""
-    return (index - first) % period == 0
-
-
 def _settings(detector, config):
     """``(TrackConfig, DetectorConfig or None)`` from what :func:`process_video` was given."""
     if isinstance(detector, VideoPipeline):
@@ -339,12 +333,8 @@ def process_video(source, target=None, detector=None, config=None, callback=None
                           and not debug_view else None)
             # Searching every N-th frame with no video to write, the frames in
             # between are only counted: those the codec allows stay undecoded.
-            needed = None
-            if (sink is None and rows is not None and period is not None and period > 1
-                    and not realtime and not debug_view):
-                # The pipeline's schedule, which a caller's pipeline may be into.
-                first_search = video.start + pipeline.searches_ahead(period).index(True)
-                needed = functools.partial(_on_schedule, first_search, period)
+            needed = (pipeline.frames_needed(video.start)
+                      if sink is None and not realtime and not debug_view else None)
             conveyor.add("decode", decode, conveyor, video, inbox, realtime, stats, early_rows,
                          needed)
             conveyor.add("detect", detect, conveyor, inbox, outboxes, pipeline, rows, debug_view,

@@ -18,6 +18,7 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
+from video_files import record_sources
 from video_stubs import BlockDetector, bundled_model_path, moving_block
 
 from fastdet.detector.detector import Detector
@@ -109,6 +110,26 @@ def test_frames_left_undecoded_change_no_detection(b_frame_video, detector, tmp_
     stats = process_video(b_frame_video, tmp_path / "out.mp4", VideoPipeline(detector, track),
                           detections=tmp_path / "piped.jsonl")
     assert stats.undecoded == 0 and (tmp_path / "piped.jsonl").read_text() == expected
+
+
+@pytest.mark.parametrize("track", [{"every": 5}, {"every": 3, "tracking": True}],
+                         ids=["every 5", "every 3 + tracking"])
+def test_annotated_frames_tracked_as_in_a_plain_loop(b_frame_video, detector, tmp_path,
+                                                     monkeypatch, track):
+    from fastdet.video import evaluate
+
+    sources = record_sources(monkeypatch, evaluate)
+    expected = plain_loop(b_frame_video, detector, TrackConfig(**track), tmp_path / "plain.jsonl")
+    names = ["frame3", "frame10", "frame26", "frame37"]
+    got = evaluate.track_annotated_frames(VideoPipeline(detector, TrackConfig(**track)),
+                                          b_frame_video, names)
+    lines = {line["frame"]: line for line in map(json.loads, expected.splitlines())}
+    for name, detections in got.items():
+        boxes = [box["box"] for box in lines[int(name[5:])]["boxes"]]
+        assert detections.xyxy.tolist() == boxes, name
+    assert sum(len(d) for d in got.values()) >= 4
+    # Without tracking the frames between searches are left undecoded.
+    assert (sources[0].frames_left_undecoded > 0) == ("tracking" not in track)
 
 
 def test_annotated_output_keeps_size_rate_and_timestamps(data_dir, detector, tmp_path):
