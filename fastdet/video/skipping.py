@@ -98,13 +98,9 @@ class FrameSkipper:
         """Leave out frames shown before timestamp ``pts``, from now on."""
         self._needed, self._before = None, pts
 
-    def decode_all(self):
-        """Leave no more frames out (those already left out still get their placeholders)."""
-        self._needed = self._before = None
-        self._context.skip_frame = "DEFAULT"
-
     def stop(self):
-        """Decode every frame from now on (placeholders still given for those left out)."""
+        """Decode every frame from now on (placeholders still given for those left out);
+        once those are given, no timestamps are kept."""
         self._broken = True
         self._context.skip_frame = "DEFAULT"
 

@@ -392,7 +392,7 @@ class VideoSource:
         if needed is not None and self.kind == "file":
             self._skipper.start(needed, lambda: self._index)
         else:
-            self._skipper.decode_all()
+            self._skipper.stop()   # nothing to leave out: no bookkeeping per frame
         for frame in self._decoded:
             if self.end is not None and self._index >= self.end:
                 return
