@@ -54,6 +54,7 @@ from numba.core.dispatcher import Dispatcher
 from platformdirs import user_cache_dir
 
 from .._version import __version__
+from .blas_check import import_numba_arraymath
 
 log = logging.getLogger("fastdet.kernels")
 
@@ -184,6 +185,8 @@ def _tolerate_damaged_entries():
     load, save = caching.Cache.load_overload, caching.Cache.save_overload
 
     def load_overload(self, sig, target_context):
+        # Loading an entry is Numba's first use in a process (see blas_check).
+        import_numba_arraymath()
         try:
             return load(self, sig, target_context)
         except Exception as exc:  # noqa: BLE001 - any damaged entry is a miss
