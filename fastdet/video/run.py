@@ -29,8 +29,8 @@ from .memory import reuse_freed_frames
 from .pipeline import VideoPipeline
 from .sink import VideoSink
 from .source import DEFAULT_TIMEOUT, VideoSource
-from .stages import (Conveyor, StageTimes, ThreadPlan, decode, detect, encode, plan_threads,
-                     report)
+from .stages import (QUEUE_FRAMES, Conveyor, StageTimes, ThreadPlan, decode, detect, encode,
+                     plan_threads, report, warm_up_queue_frames)
 
 #: The stages of a run, in pipeline order.
 RUN_STAGES = ("decode", "detect", "encode", "write")
@@ -315,18 +315,6 @@ def process_video(source, target=None, detector=None, config=None, callback=None
                 if detections is not None:
                     writer = DetectionWriter(detections, detections_format)
                     outputs.append(writer)
-            warm_up = getattr(pipeline.detector, "warm_up", None)
-            if warm_up is not None:
-                with (warm_up_notice() if warm_up_notice else contextlib.nullcontext()):
-                    stats.warmup = warm_up(video.first_frame)
-
-            inbox, outboxes = conveyor.queue(), []
-            if sink is not None:
-                outboxes.append(conveyor.queue())
-                conveyor.add("encode", encode, conveyor, outboxes[-1], sink, inbox=outboxes[-1])
-            outboxes.append(conveyor.queue())
-            conveyor.add("write", report, conveyor, outboxes[-1], writer, callback, stats,
-                         inbox=outboxes[-1])
             # Searching every frame, the detector's thread bounds the run: the
             # decoder's converts the searched rows instead (0.3-0.6 ms a frame).
             early_rows = (rows if rows is not None and period == 1 and not realtime
@@ -335,20 +323,45 @@ def process_video(source, target=None, detector=None, config=None, callback=None
             # between are only counted: those the codec allows stay undecoded.
             needed = (pipeline.frames_needed(video.start)
                       if sink is None and not realtime and not debug_view else None)
+            warm_up = getattr(pipeline.detector, "warm_up", None)
+            warm_up_frame = video.first_frame     # taken before the decoder starts
+            # The decoder starts while the kernels load, into a queue that
+            # holds more frames until the detector is ready.
+            inbox = conveyor.frame_queue(QUEUE_FRAMES if realtime or warm_up is None
+                                         else warm_up_queue_frames(video.size))
             conveyor.add("decode", decode, conveyor, video, inbox, realtime, stats, early_rows,
                          needed)
-            conveyor.add("detect", detect, conveyor, inbox, outboxes, pipeline, rows, debug_view,
-                         first_output, stats, plan.frames_at_once, inbox=inbox)
-            total = video.expected_frames
-            total = None if total is None else max(total - (first_output - video.start), 0)
-            tick = None if progress is None else (lambda: progress(stats.frames, total))
-            guard.running()
-            started = time.perf_counter()
+            conveyor.start("decode")
             try:
-                conveyor.run(tick)
-            finally:
-                stats.wall = time.perf_counter() - started
-                stats.times = conveyor.times
+                if warm_up is not None:
+                    with (warm_up_notice() if warm_up_notice else contextlib.nullcontext()):
+                        stats.warmup = warm_up(warm_up_frame)
+                inbox.frames = QUEUE_FRAMES
+                outboxes = []
+                if sink is not None:
+                    outboxes.append(conveyor.queue())
+                    conveyor.add("encode", encode, conveyor, outboxes[-1], sink,
+                                 inbox=outboxes[-1])
+                outboxes.append(conveyor.queue())
+                conveyor.add("write", report, conveyor, outboxes[-1], writer, callback, stats,
+                             inbox=outboxes[-1])
+                conveyor.add("detect", detect, conveyor, inbox, outboxes, pipeline, rows,
+                             debug_view, first_output, stats, plan.frames_at_once, inbox=inbox)
+                total = video.expected_frames
+                total = None if total is None else max(total - (first_output - video.start), 0)
+                tick = None if progress is None else (lambda: progress(stats.frames, total))
+                guard.running()
+                started = time.perf_counter()
+                try:
+                    conveyor.run(tick)
+                finally:
+                    stats.wall = time.perf_counter() - started
+                    stats.times = conveyor.times
+            except BaseException:
+                # Before the run started (a failed warm-up, a signal), the
+                # decoder is the one stage running: stop it before closing its source.
+                conveyor.cancel()
+                raise
             if conveyor.aborted or stats.frames == 0:
                 _discard(outputs)
                 if stats.interrupted:

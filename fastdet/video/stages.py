@@ -41,6 +41,12 @@ from .frame_arrays import FrameConverter, plane_view
 
 #: Frames each queue holds: enough to ride out one slow frame, few enough for flat memory.
 QUEUE_FRAMES = 4
+#: Decoded frames the detector's queue may hold while the kernels load (the
+#: decoder starts before the warm-up; 24 1280x720 frames are about 33 MB).
+WARM_UP_FRAMES = 24
+#: Items without pixels (frames left undecoded or not looked at) a frame
+#: queue holds besides its frames.
+PLACEHOLDERS = 64
 #: Seconds a blocked stage waits before looking at the stop/abort flags again.
 POLL_SECONDS = 0.1
 #: Marks the end of the frame stream.
@@ -137,6 +143,66 @@ class StageTimes:
         return min(self.stages, key=lambda n: self.stages[n].starved + self.stages[n].blocked)
 
 
+def warm_up_queue_frames(frame_size):
+    """Frames the detector's queue holds while the kernels load: ``WARM_UP_FRAMES``
+    at 1280x720, fewer for larger frames (the same memory), never below ``QUEUE_FRAMES``."""
+    width, height = frame_size
+    return max(QUEUE_FRAMES, min(WARM_UP_FRAMES,
+                                 int(WARM_UP_FRAMES * 1280 * 720 / max(width * height, 1))))
+
+
+class FrameQueue(queue.Queue):
+    """A queue of ``(index, frame, ...)`` items bounded by the frames that carry pixels.
+
+    Items whose frame is ``None`` (placeholders of frames nobody looks at)
+    hold no memory to speak of: up to ``placeholders`` of them wait besides
+    ``frames`` items with pixels, so a decoder that leaves most frames out
+    is not held back by a count of items.  ``frames`` may be changed while
+    the queue is in use (a smaller bound applies from the next ``put``).
+    """
+
+    def __init__(self, frames=QUEUE_FRAMES, placeholders=PLACEHOLDERS):
+        super().__init__()
+        self.frames = frames
+        self.placeholders = placeholders
+        self._carrying = 0
+
+    @staticmethod
+    def _carries(item):
+        return isinstance(item, tuple) and item[1] is not None
+
+    def _no_room_for(self, item):
+        if self._carries(item):
+            return self._carrying >= self.frames
+        return len(self.queue) - self._carrying >= self.placeholders
+
+    def put(self, item, block=True, timeout=None):
+        with self.not_full:
+            deadline = None if timeout is None else time.monotonic() + timeout
+            while self._no_room_for(item):
+                if not block:
+                    raise queue.Full
+                if deadline is None:
+                    self.not_full.wait()
+                else:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        raise queue.Full
+                    self.not_full.wait(remaining)
+            self._put(item)
+            self.unfinished_tasks += 1
+            self.not_empty.notify()
+
+    def _put(self, item):
+        self._carrying += self._carries(item)
+        self.queue.append(item)
+
+    def _get(self):
+        item = self.queue.popleft()
+        self._carrying -= self._carries(item)
+        return item
+
+
 class Conveyor:
     """Stage threads joined by bounded queues, with shared stop and abort flags.
 
@@ -150,6 +216,7 @@ class Conveyor:
         self._threads = []
         self._errors = []
         self._unread = set()    # queues whose consumer has stopped
+        self._named = {}
         self.times = StageTimes()
         #: True while :meth:`run` waits for the stages.
         self.running = False
@@ -158,6 +225,10 @@ class Conveyor:
     def queue(self, size=QUEUE_FRAMES):
         """A new bounded queue between two stages."""
         return queue.Queue(maxsize=size)
+
+    def frame_queue(self, frames=QUEUE_FRAMES):
+        """A new queue of decoded frames, bounded by the frames with pixels (:class:`FrameQueue`)."""
+        return FrameQueue(frames)
 
     def get(self, source, clock):
         """The next item of ``source``; raises :class:`Aborted` once the run aborts."""
@@ -216,7 +287,23 @@ class Conveyor:
                     self._unread.add(id(inbox))
                 clock.cpu = time.thread_time() - cpu
 
-        self._threads.append(threading.Thread(target=body, name=f"fastdet-{name}", daemon=True))
+        thread = threading.Thread(target=body, name=f"fastdet-{name}", daemon=True)
+        self._threads.append(thread)
+        self._named[name] = thread
+
+    def start(self, name):
+        """Start one stage before :meth:`run` (which then starts the others).
+
+        Until :meth:`run`, only :meth:`cancel` stops it.
+        """
+        self._named[name].start()
+
+    def cancel(self):
+        """Abort, and wait for the stages already started (a run that will not start)."""
+        self.abort()
+        for thread in self._threads:
+            if thread.ident is not None:
+                thread.join()
 
     def stop(self):
         """Stop reading input; what was read still goes through every stage."""
@@ -248,7 +335,8 @@ class Conveyor:
         cpu = time.process_time()
         self.running = True
         for thread in self._threads:
-            thread.start()
+            if thread.ident is None:
+                thread.start()
         try:
             for thread in self._threads:
                 while thread.is_alive():
@@ -309,6 +397,9 @@ def decode(clock, conveyor, source, outbox, realtime, stats, rows=None, needed=N
                 delay = started + float((frame.pts - first_pts) * source.time_base)
                 while not conveyor.stopping.is_set() and time.perf_counter() < delay:
                     time.sleep(min(0.01, delay - time.perf_counter()))
+            if needed is not None and frame is not None and not needed(index):
+                # A reference frame decoded for others: its pixels stay behind.
+                frame = None
             bgr = (converter.to_bgr(frame, rows)
                    if converter is not None and frame is not None else None)
             if realtime:

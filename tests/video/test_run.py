@@ -160,6 +160,60 @@ def test_callback_sees_every_frame_in_order(tmp_path):
     assert all(count == 1 for _, count in seen)
 
 
+class SlowWarmUpDetector(BlockDetector):
+    """A detector whose warm-up (the kernels' loading) takes a while, or fails."""
+
+    def __init__(self, source_list, fail=False):
+        super().__init__()
+        self.source_list, self.fail = source_list, fail
+        self.read_during_warm_up = None
+
+    def warm_up(self, frame):
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and self.source_list[0].frames_read < 12:
+            time.sleep(0.01)
+        self.read_during_warm_up = self.source_list[0].frames_read
+        if self.fail:
+            raise InputError("the kernels did not load")
+        return 0.0
+
+
+def block_video(path, n_frames):
+    frames, _ = moving_block(n_frames)
+    with VideoSink(path, 10.0, (frames[0].shape[1], frames[0].shape[0])) as sink:
+        for frame in frames:
+            sink.write(frame)
+    return path
+
+
+def test_decoding_starts_while_the_kernels_load(tmp_path, monkeypatch):
+    import fastdet.video.run as run_module
+
+    sources = record_sources(monkeypatch, run_module)
+    path = block_video(tmp_path / "blocks.mp4", 30)
+    detector = SlowWarmUpDetector(sources)
+    seen = []
+    stats = process_video(path, None, VideoPipeline(detector),
+                          callback=lambda index, detections: seen.append(index))
+    # More than the usual queue of 4: the queue holds more until the detector is ready.
+    assert detector.read_during_warm_up >= 12
+    assert seen == list(range(30)) and stats.frames == 30
+
+
+def test_a_failed_warm_up_stops_the_decoder_and_leaves_no_output(tmp_path, monkeypatch):
+    import threading
+
+    import fastdet.video.run as run_module
+
+    sources = record_sources(monkeypatch, run_module)
+    path = block_video(tmp_path / "blocks.mp4", 60)
+    with pytest.raises(InputError, match="did not load"):
+        process_video(path, None, VideoPipeline(SlowWarmUpDetector(sources, fail=True)),
+                      detections=tmp_path / "dets.jsonl")
+    assert not [t for t in threading.enumerate() if t.name.startswith("fastdet-")]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocks.mp4"]
+
+
 def test_an_error_in_a_stage_leaves_no_output(data_dir, detector, tmp_path):
     def fail(index, detections):
         if index == 4:

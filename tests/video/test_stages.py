@@ -9,7 +9,8 @@ import time
 import pytest
 
 from fastdet.video.stages import _put_newest
-from fastdet.video.stages import END, Conveyor, plan_threads
+from fastdet.video.stages import (END, QUEUE_FRAMES, WARM_UP_FRAMES, Conveyor, FrameQueue,
+                                  plan_threads, warm_up_queue_frames)
 
 
 # -- the thread plan -------------------------------------------------------------------
@@ -128,3 +129,94 @@ def test_realtime_keeps_the_newest_frames():
     dropped = sum(_put_newest(box, item) for item in range(5))
     assert dropped == 3
     assert [box.get_nowait(), box.get_nowait()] == [3, 4]
+
+
+# -- the queue of decoded frames ----------------------------------------------------------
+def test_a_frame_queue_counts_only_the_frames_with_pixels():
+    box = FrameQueue(frames=2, placeholders=3)
+    box.put((0, "pixels", None))
+    box.put((1, None, None))
+    box.put((2, "pixels", None))
+    with pytest.raises(queue.Full):
+        box.put_nowait((3, "pixels", None))        # two frames with pixels wait already
+    for index in (3, 4):
+        box.put_nowait((index, None, None))         # placeholders still fit, up to three
+    with pytest.raises(queue.Full):
+        box.put_nowait((5, None, None))
+    with pytest.raises(queue.Full):
+        box.put((5, None, None), timeout=0.05)
+    assert box.get_nowait() == (0, "pixels", None)
+    box.put_nowait((5, "pixels", None))            # room for one more frame
+    assert [box.get_nowait()[0] for _ in range(5)] == [1, 2, 3, 4, 5]
+    with pytest.raises(queue.Empty):
+        box.get_nowait()
+
+
+def test_a_frame_queue_bound_can_shrink_while_in_use():
+    box = FrameQueue(frames=3)
+    for index in range(3):
+        box.put_nowait((index, "pixels", None))
+    box.frames = 1
+    box.get_nowait()
+    with pytest.raises(queue.Full):                 # two still wait: over the new bound
+        box.put_nowait((3, "pixels", None))
+    box.get_nowait()
+    box.get_nowait()
+    box.put_nowait((3, "pixels", None))
+    box.put_nowait(END)                             # the end marker carries no pixels
+
+
+def test_a_waiting_put_goes_through_once_a_frame_is_taken():
+    conveyor = Conveyor()
+    box = conveyor.frame_queue(frames=1)
+    box.put((0, "pixels", None))
+    got = []
+
+    def consumer(clock):
+        time.sleep(0.2)
+        got.append(conveyor.get(box, clock))
+        got.append(conveyor.get(box, clock))
+
+    def producer(clock):
+        conveyor.put(box, (1, "pixels", None), clock)
+
+    conveyor.add("consumer", consumer, inbox=box)
+    conveyor.add("producer", producer)
+    conveyor.run()
+    assert [item[0] for item in got] == [0, 1]
+    assert conveyor.times.stages["producer"].blocked > 0.1
+
+
+def test_the_warm_up_queue_holds_the_same_memory_at_every_size():
+    assert warm_up_queue_frames((1280, 720)) == WARM_UP_FRAMES
+    assert warm_up_queue_frames((640, 360)) == WARM_UP_FRAMES
+    assert warm_up_queue_frames((1920, 1080)) == WARM_UP_FRAMES * 1280 * 720 // (1920 * 1080)
+    assert warm_up_queue_frames((7680, 4320)) == QUEUE_FRAMES
+
+
+# -- a stage started before the run -------------------------------------------------------
+def test_a_stage_started_early_runs_before_the_others_and_once():
+    conveyor = Conveyor()
+    received = chain(conveyor, range(100))
+    conveyor.start("source")
+    time.sleep(0.2)
+    assert not received                              # the others wait for run()
+    conveyor.run()
+    assert received == list(range(100))
+
+
+def test_cancel_stops_a_stage_started_early():
+    conveyor = Conveyor()
+    inbox = conveyor.queue(2)
+
+    def endless(clock):
+        for item in itertools.count():
+            conveyor.put(inbox, item, clock)
+
+    conveyor.add("source", endless)
+    conveyor.start("source")
+    time.sleep(0.1)
+    started = time.monotonic()
+    conveyor.cancel()
+    assert conveyor.aborted and time.monotonic() - started < 5
+    assert inbox.qsize() == 2
