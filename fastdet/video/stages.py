@@ -380,7 +380,8 @@ def decode(clock, conveyor, source, outbox, realtime, stats, rows=None, needed=N
     with it: for runs that search every frame, where the detector's thread
     bounds the run and this one has time to spare.  With ``needed``
     (``needed(index) -> bool``), frames nothing looks at may stay undecoded
-    and travel as ``None`` (:meth:`~fastdet.video.source.VideoSource.decoded_frames`).
+    (:meth:`~fastdet.video.source.VideoSource.decoded_frames`) and travel as
+    ``None``, as do those decoded only as references for others.
     """
     frames = source.decoded_frames(needed)
     converter = FrameConverter() if rows is not None else None
@@ -398,7 +399,8 @@ def decode(clock, conveyor, source, outbox, realtime, stats, rows=None, needed=N
                 while not conveyor.stopping.is_set() and time.perf_counter() < delay:
                     time.sleep(min(0.01, delay - time.perf_counter()))
             if needed is not None and frame is not None and not needed(index):
-                # A reference frame decoded for others: its pixels stay behind.
+                # Decoded but not looked at (a reference for other frames, or any
+                # frame once the skipping stopped): it travels without its pixels.
                 frame = None
             bgr = (converter.to_bgr(frame, rows)
                    if converter is not None and frame is not None else None)
