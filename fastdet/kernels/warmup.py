@@ -29,11 +29,12 @@ import numpy as np
 
 #: CPU seconds each family took to compile (empty cache, a process of its
 #: own, Numba's own helpers included), measured on an AMD EPYC (Zen 3, AVX2,
-#: 2026-11-27; the AVX-512 development machine took about 0.6 of these);
+#: 2026-11-27, after the label family's small helpers were inlined; the
+#: AVX-512 development machine took about 0.6 of these);
 #: :func:`split_families` balances two processes with these weights.
-COMPILE_WEIGHTS = {"label": 8.1, "split": 4.8, "track": 4.6, "score": 3.7, "hog_api": 3.3,
-                   "colour": 2.9, "heat": 2.7, "resize": 2.7, "hog": 2.4, "refine": 2.0,
-                   "convert": 1.4}
+COMPILE_WEIGHTS = {"label": 6.7, "track": 5.7, "split": 5.1, "score": 4.0, "hog_api": 3.8,
+                   "colour": 2.8, "heat": 2.8, "resize": 2.8, "hog": 2.6, "refine": 2.3,
+                   "convert": 1.5}
 
 
 def _frame_band(height, width):
