@@ -325,10 +325,13 @@ def process_video(source, target=None, detector=None, config=None, callback=None
                       if sink is None and not realtime and not debug_view else None)
             warm_up = getattr(pipeline.detector, "warm_up", None)
             warm_up_frame = video.first_frame     # taken before the decoder starts
-            # The decoder starts while the kernels load, into a queue that
-            # holds more frames until the detector is ready.
-            inbox = conveyor.frame_queue(QUEUE_FRAMES if realtime or warm_up is None
-                                         else warm_up_queue_frames(video.size))
+            # The decoder starts while the kernels load.  Where it bounds the
+            # run (frames left out), its queue holds more frames until the
+            # detector is ready; elsewhere the detector bounds it and the
+            # memory would buy nothing.
+            inbox = conveyor.frame_queue(warm_up_queue_frames(video.size)
+                                         if needed is not None and warm_up is not None
+                                         else QUEUE_FRAMES)
             conveyor.add("decode", decode, conveyor, video, inbox, realtime, stats, early_rows,
                          needed)
             conveyor.start("decode")
