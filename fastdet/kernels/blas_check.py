@@ -1,7 +1,9 @@
-"""Numba's first use without importing SciPy's linear algebra.
+"""Numba's first compile without importing SciPy's linear algebra.
 
-The first kernel a process loads makes Numba import its NumPy
-implementations (``numba.np.arraymath``), and that module asks at import
+The first kernel a process compiles makes Numba import its NumPy
+implementations (``numba.np.arraymath``; so does the first kernel it loads
+from the cache where :mod:`fastdet.kernels.cached_load` does not apply),
+and that module asks at import
 whether a BLAS exists by importing ``scipy.linalg.cython_blas``: all of
 ``scipy.linalg``, about 0.14 s (a quarter of fastdet's start-up above
 NumPy, OpenCV and Numba themselves on the development machine), for an

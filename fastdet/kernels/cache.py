@@ -54,6 +54,7 @@ from numba.core.dispatcher import Dispatcher
 from platformdirs import user_cache_dir
 
 from .._version import __version__
+from . import cached_load
 from .blas_check import import_numba_arraymath
 
 log = logging.getLogger("fastdet.kernels")
@@ -185,9 +186,14 @@ def _tolerate_damaged_entries():
     load, save = caching.Cache.load_overload, caching.Cache.save_overload
 
     def load_overload(self, sig, target_context):
-        # Loading an entry is Numba's first use in a process (see blas_check).
-        import_numba_arraymath()
         try:
+            if _is_fastdet_kernel(self) and cached_load.supported(self):
+                loaded = cached_load.load_cached(self, sig, target_context)
+                if loaded is None:
+                    # A miss: Numba compiles it next, maybe its first compile here.
+                    import_numba_arraymath()
+                return loaded
+            import_numba_arraymath()
             return load(self, sig, target_context)
         except Exception as exc:  # noqa: BLE001 - any damaged entry is a miss
             if not _is_fastdet_kernel(self):

@@ -191,3 +191,78 @@ def test_cache_of_another_cpu_is_not_loaded(image, expected_boxes, tmp_path):
     boxes, stderr = detect(image, folder, "NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES")
     assert boxes == expected_boxes and counts(stderr)[1] > 0 and "is damaged" not in stderr
     assert counts(detect(image, folder, "NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES")[1])[1] == 0
+
+
+# -- loading without Numba's compile set-up (fastdet.kernels.cached_load) -------------------
+_LOADS_WITHOUT_REGISTRIES = r"""
+import json, re, sys
+import cv2, numba
+import numpy as np
+import fastdet
+from fastdet.kernels import cache, cached_load
+
+image = cv2.imread(sys.argv[1])
+boxes = fastdet.Detector(threads=1)(image).xyxy.tolist()
+loaded, compiled = map(int, re.search(r"(\d+) loaded from the cache, (\d+) compiled",
+                                      cache.summary()).groups())
+assert loaded > 0 and compiled == 0, cache.summary()
+light = cached_load._numba_version() in cached_load.CHECKED_NUMBA
+# Numba's implementations of lists, sets, linear algebra, ... are what a
+# refresh of the target imports; loading machine code needs none of them.
+assert ("numba.np.arraymath" not in sys.modules) == light, light
+assert ("numba.np.linalg" not in sys.modules) == light, light
+assert "numba.cpython.hashing" in sys.modules
+
+# Compiling still works in this process, and refreshes the target then:
+# a fastdet kernel at a signature not in the cache ...
+from fastdet.kernels.heat import accumulate_heat
+boxes32 = np.array([[1, 2, 9, 7], [4, 0, 12, 5]], np.int32)
+weights = np.array([0.5, 2.0], np.float32)
+assert np.array_equal(accumulate_heat(boxes32.astype(np.int64), weights, 9, 13),
+                      accumulate_heat(boxes32, weights, 9, 13))
+# ... and a user's function that takes what a refresh installs: lists, sets,
+# dicts of strings (the hash secret), random numbers, np.dot.
+@numba.njit
+def mixed(a, b, words):
+    seen = set()
+    counts = {}
+    for w in words:
+        seen.add(w)
+        if w in counts:
+            counts[w] += 1
+        else:
+            counts[w] = 1
+    np.random.seed(3)
+    return np.dot(a, b), len(seen), counts["car"], np.random.random()
+
+a, b = np.arange(6.0).reshape(2, 3), np.arange(12.0).reshape(3, 4)
+product, distinct, cars, random = mixed(a, b, numba.typed.List(["car", "van", "car"]))
+np.random.seed(3)
+assert np.allclose(product, a @ b) and distinct == 2 and cars == 2
+assert random == np.random.random()
+print(json.dumps(boxes))
+"""
+
+
+def test_cached_kernels_load_without_numba_registries(image, filled_cache, expected_boxes,
+                                                      tmp_path):
+    environment = dict(os.environ, NUMBA_CACHE_DIR=str(copy_of(filled_cache, tmp_path / "k")))
+    result = subprocess.run([sys.executable, "-c", _LOADS_WITHOUT_REGISTRIES, str(image)],
+                            cwd=ROOT, env=environment, capture_output=True, text=True,
+                            timeout=900)
+    assert result.returncode == 0, result.stderr[-3000:]
+    boxes = json.loads(result.stdout.splitlines()[-1])
+    assert [list(map(int, box)) for box in boxes] == [b["box"] for b in expected_boxes]
+
+
+def test_cached_load_takes_numbas_path_for_unchecked_versions(monkeypatch):
+    from fastdet.kernels import cached_load, heat
+
+    numba_cache = next(v for v in vars(heat).values() if hasattr(v, "_cache"))._cache
+    assert cached_load.supported(numba_cache) == (
+        cached_load._numba_version() in cached_load.CHECKED_NUMBA)
+    monkeypatch.setattr(cached_load.numba, "__version__", "0.99.0")
+    assert not cached_load.supported(numba_cache)
+    monkeypatch.setattr(cached_load.numba, "__version__", "not-a-version")
+    assert not cached_load.supported(numba_cache)
+
