@@ -28,7 +28,7 @@ from .manifest import Manifest, input_fingerprint, is_up_to_date
 from .outputs import OutputPaths, output_paths, parts_folder, remove_leftovers
 from .progress import BatchProgress
 from .segments import parse_segment, plan_segments, segment_frames, warmup_frames
-from .worker import BatchSetup, merge_task, render_task, video_task
+from .worker import BatchSetup, merge_task, render_task, replay_task, search_task, video_task
 
 #: Extra runs of a task that raised an unexpected exception.
 RETRIES = 1
@@ -49,8 +49,12 @@ class BatchRun:
     segment : str, optional
         ``--segment``: frames (``"500"``) or seconds (``"30s"``) per segment.
     warmup : int, optional
-        Frames of warm-up before a segment (default: from the ``[track]``
-        settings, see :mod:`fastdet.batch.segments`).
+        Frames of warm-up before a segment.  By default segments without
+        patch tracking are searched in parallel and their temporal steps run
+        in one pass (:mod:`fastdet.batch.split_search`), and with patch
+        tracking they warm up for as long as the ``[track]`` settings need
+        (:mod:`fastdet.batch.segments`); a number here makes every segment
+        warm up that long.
 
     Attributes
     ----------
@@ -70,7 +74,11 @@ class BatchRun:
         self.out_dir = Path(out_dir)
         self.force = force
         self.segment = None if segment is None else parse_segment(segment)
-        if warmup is None:
+        # Without patch tracking the frames to search are known ahead: no warm-up.
+        self.split_search = warmup is None and not settings.track_config.tracking
+        if self.split_search:
+            self.warmup, self.align = 0, 1
+        elif warmup is None:
             self.warmup, self.align = warmup_frames(settings.track_config)
         else:
             self.warmup, self.align = int(warmup), 1
@@ -252,11 +260,16 @@ class _WholeVideo:
 class _SegmentedVideo:
     """A long video: segments detected in parallel, boundaries checked, drawn, merged.
 
-    Phases: every segment's detections (:func:`~fastdet.batch.worker.video_task`
+    Without patch tracking (:mod:`fastdet.batch.split_search`): every
+    segment's search (:func:`~fastdet.batch.worker.search_task`), then one
+    task runs their hits through one pipeline into each segment's jsonl part
+    (:func:`~fastdet.batch.worker.replay_task`), in whole-video ids.  With
+    patch tracking: every segment's detections after a warm-up
+    (:func:`~fastdet.batch.worker.video_task`
     into jsonl parts); the boundary checks, left to right, redoing a segment
     with its tracks reordered or a longer warm-up when its check fails (a
     warm-up from frame 0 is the whole-video run itself); with a video output,
-    each segment's boxes drawn in whole-video ids
+    then (both ways) each segment's boxes drawn in whole-video ids
     (:func:`~fastdet.batch.worker.render_task`); the merge.
     """
 
@@ -280,7 +293,53 @@ class _SegmentedVideo:
 
     def start(self):
         self.parts.mkdir(parents=True, exist_ok=True)
+        if self.run.split_search:
+            return [self._search(k) for k in range(len(self.segments))]
         return [self._detect(k) for k in range(len(self.segments))]
+
+    def _search(self, k):
+        start, end, _ = self.segments[k]
+        job = {"input": str(self.video.path), "frame_range": (start, end),
+               "hits": str(self._part(k, ".hits.npz")), "topic": self.run.topic,
+               "key": f"{self.video.relative}#{k}"}
+        future = self.run.submit(search_task, self.run.settings.name, job,
+                                 key=f"{self.video.key}-search{k}")
+        self._tags[future.key] = ("search", k)
+        return future
+
+    def _replay(self):
+        """One task runs every segment's hits through one pipeline, in order."""
+        count = len(self.results)
+        job = {"hits": [str(self._part(k, ".hits.npz")) for k in range(count)],
+               "detections": [str(self._part(k, ".jsonl")) for k in range(count)]}
+        future = self.run.submit(replay_task, self.run.settings.name, job,
+                                 key=f"{self.video.key}-replay")
+        self._tags[future.key] = ("replay", None)
+        return future
+
+    def _searched(self):
+        """Every segment searched: drop those past the video's real end, then replay."""
+        for k, result in enumerate(self.results):
+            if result["frames"] == 0:          # the header promised more frames than there are
+                self._drop_from(k)
+                break
+            start, end, _ = self.segments[k]
+            if end is not None and result["frames"] < end - start:
+                self._drop_from(k + 1)         # the video cannot be read past here
+                break
+        if not self.results:
+            self.record = _failed_record(self.video, self.fingerprint, self.run.settings,
+                                         f"{self.video.path}: no frame could be read")
+            return []
+        return [self._replay()]
+
+    def _replayed(self, result):
+        for k, segment in enumerate(result["segments"]):
+            self.results[k] = dict(self.results[k], **segment)
+        self.maps = [IdMap.identity()] * len(self.results)
+        if self.outputs.video is None:
+            return [self._merge()]
+        return [self._render(k) for k in range(len(self.segments))]
 
     def _detect(self, k, order=None):
         start, end, _ = self.segments[k]
@@ -301,6 +360,11 @@ class _SegmentedVideo:
             self.record = _failed_record(self.video, self.fingerprint, self.run.settings, reason)
             return []
         self.tasks.append(result)
+        if phase == "search":
+            self.results[k] = result
+            return self._searched() if all(r is not None for r in self.results) else []
+        if phase == "replay":
+            return self._replayed(result)
         if phase == "detect":
             self.results[k] = result
             return self._check() if all(r is not None for r in self.results) else []

@@ -2,9 +2,12 @@
 
 ``--segment 500`` splits a video of more than 500 frames into
 ``ceil(frames / 500)`` segments, ``--segment 30s`` into segments of 30 seconds.
-Every segment but the first re-processes :func:`warmup_frames` frames before
-its start, so the boundaries are placed to give the segments equal work: the
-first is longer by a warm-up.
+Without patch tracking the segments are searched in parallel and replayed in
+one pass (:mod:`fastdet.batch.split_search`): they need no warm-up and are of
+equal length.  With patch tracking (or a warm-up asked for), every segment
+but the first re-processes :func:`warmup_frames` frames before its start, so
+the boundaries are placed to give the segments equal work: the first is
+longer by a warm-up.
 
 How long a warm-up must be, for the ``[track]`` settings:
 

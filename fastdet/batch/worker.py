@@ -36,6 +36,7 @@ from .job import process_one, render_one, warm_up
 from ..video.memory import reuse_freed_frames
 from .merge import concatenate_videos, merge_detections
 from .outputs import OutputPaths
+from .split_search import replay_segments, search_segment
 
 #: Size of the synthetic frame the set-up detects on (noise makes many windows
 #: hits, so heat and labelling run as well as scoring).
@@ -146,6 +147,44 @@ def video_task(name, job):
     except (FastdetError, OSError) as exc:
         result = _failed(exc)
     result.update(worker=worker.address, setup_seconds=plugin.setup_seconds)
+    return result
+
+
+def search_task(name, job):
+    """Phase 1 of a segmented video without patch tracking (:func:`~.split_search.search_segment`).
+
+    ``job`` holds ``input``, ``frame_range``, ``hits`` (the file to write),
+    ``topic`` and ``key``.
+    """
+    started = time.time()
+    worker, plugin = _setup(name)
+    try:
+        result = search_segment(job["input"], job["frame_range"], Path(job["hits"]),
+                                plugin.settings, detector=plugin.detector(),
+                                callback=_reporter(worker, job.get("topic"), job.get("key")))
+        result["status"] = "done"
+    except (FastdetError, OSError) as exc:
+        result = _failed(exc)
+    result.update(started=started, finished=time.time(), worker=worker.address)
+    return result
+
+
+def replay_task(name, job):
+    """Phase 2 of a segmented video without patch tracking (:func:`~.split_search.replay_segments`).
+
+    ``job`` holds ``hits`` and ``detections``: per segment, the file its
+    search wrote and its detections to write.
+    """
+    started = time.time()
+    worker, plugin = _setup(name)
+    try:
+        segments = replay_segments([Path(p) for p in job["hits"]],
+                                   [Path(p) for p in job["detections"]], plugin.settings,
+                                   detector=plugin.detector())
+        result = {"status": "done", "segments": segments}
+    except (FastdetError, OSError) as exc:
+        result = _failed(exc)
+    result.update(started=started, finished=time.time(), worker=worker.address)
     return result
 
 

@@ -22,17 +22,6 @@ from fastdet.video.run import process_video
 from fastdet.video.source import VideoSource
 
 
-@pytest.fixture(scope="module")
-def blocks_video(tmp_path_factory):
-    """90 frames of two textured blocks, one leaving the picture (mp4v, 10 fps)."""
-    path = tmp_path_factory.mktemp("job") / "blocks.mp4"
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 10.0, (200, 120))
-    for frame in two_blocks(90):
-        writer.write(frame)
-    writer.release()
-    return path
-
-
 def outputs(folder, name, video=True, detections=True, thumbnail=False):
     return OutputPaths(folder / f"{name}.mp4" if video else None,
                        folder / f"{name}.jsonl" if detections else None,

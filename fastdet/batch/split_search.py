@@ -1,0 +1,175 @@
+"""Segments without patch tracking: each segment's search in parallel, the temporal steps in one pass.
+
+Without patch tracking (``[track] tracking = false``, the default) a
+pipeline's frames to search are fixed in advance, every ``every``-th frame
+from the first, and a frame's hits (the scoring of every window, nearly all
+of the work) depend on that frame alone; everything that carries over from
+frame to frame (heat smoothing, boxes, tracks and their ids) is computed from
+the hits, in order.  So a long video is processed in two phases:
+
+1. :func:`search_segment`, one task per segment, in parallel: decode the
+   segment's frames and save the detector's hits of the searched ones;
+2. :func:`replay_segments`, one task: feed every segment's hits, in frame
+   order, through one :class:`~fastdet.video.pipeline.VideoPipeline`, and
+   write each segment's detections.
+
+The pipeline of phase 2 receives the same hits, in the same order, as the
+pipeline of a whole-video run: its detections, track ids included, are the
+whole-video run's by construction, with no warm-up and nothing to check at
+the boundaries.  Phase 2 costs the temporal steps alone (about a tenth of a
+frame's work).  With patch tracking, whether a frame is searched depends on
+the frames before it, and segments warm up instead (:mod:`.segments`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+
+import numpy as np
+
+from ..detector.scoring import Hits
+from ..errors import InputError
+from ..files.atomic import atomic_path
+from ..video.detection_files import DetectionWriter
+from ..video.frame_arrays import FrameConverter
+from ..video.pipeline import VideoPipeline
+from ..video.source import VideoSource
+
+
+def searched(index, track_config):
+    """Whether a pipeline without patch tracking fully searches frame ``index``."""
+    return index % (track_config.search_period or 1) == 0
+
+
+def search_segment(input_path, frame_range, hits_path, options, *, detector, callback=None):
+    """Phase 1: the detector's hits of a segment's searched frames, saved to ``hits_path``.
+
+    Parameters
+    ----------
+    input_path : str or Path
+    frame_range : tuple of (int, int or None)
+        ``(start, end)``: frames ``start`` to ``end - 1`` (``None``: to the end).
+    hits_path : Path
+        The ``.npz`` file to write (atomically).
+    options : fastdet.batch.settings.BatchSettings
+        Its track configuration (without patch tracking) and decoder threads.
+    detector : fastdet.Detector
+        The worker's detector.
+    callback : callable, optional
+        Called now and then with the number of frames read so far.
+
+    Returns
+    -------
+    dict
+        ``frames`` read, the video's ``fps`` and ``size``, ``seconds``.
+
+    Raises
+    ------
+    InputError
+        When the video cannot be read or the file cannot be written.
+    """
+    clock = time.perf_counter()
+    track_config = options.track_config
+    if track_config.tracking:
+        raise ValueError("segments with patch tracking warm up instead (fastdet.batch.segments)")
+    start, end = frame_range
+    index, boxes, scores, scales, windows = [], [], [], [], []
+    converter = FrameConverter()
+    with VideoSource(input_path, start, end, threads=options.threads) as reader:
+        rows = VideoPipeline(detector, track_config).rows_read(reader.size)
+        frames = reader.decoded_frames(
+            None if (track_config.search_period or 1) == 1
+            else (lambda i: searched(i, track_config)))
+        done = 0
+        for done, frame in enumerate(frames, 1):
+            at = start + done - 1
+            if frame is None or not searched(at, track_config):
+                continue
+            hits = detector.hits(converter.to_bgr(frame, rows))
+            index.append(at)
+            windows.append(hits.windows_scored)
+            boxes.append(hits.boxes)
+            scores.append(hits.scores)
+            scales.append(hits.scale_index)
+            if callback is not None:
+                callback(done)
+        fps, size = reader.fps, list(reader.size)
+    with atomic_path(hits_path) as temporary:
+        with open(temporary, "wb") as file:
+            np.savez(file, start=start, frames=done, size=np.asarray(size, np.int64),
+                     index=np.asarray(index, np.int64), windows=np.asarray(windows, np.int64),
+                     counts=np.asarray([len(b) for b in boxes], np.int64),
+                     boxes=_joined(boxes, np.int32, (0, 4)), scores=_joined(scores, np.float32),
+                     scale_index=_joined(scales, np.int64))
+    return {"frames": done, "fps": fps, "size": size, "seconds": time.perf_counter() - clock}
+
+
+def _joined(arrays, dtype, empty_shape=(0,)):
+    return np.concatenate(arrays).astype(dtype, copy=False) if arrays else np.zeros(empty_shape,
+                                                                                    dtype)
+
+
+def replay_segments(hits_paths, detections_paths, options, *, detector):
+    """Phase 2: every segment's hits through one pipeline, in frame order.
+
+    Parameters
+    ----------
+    hits_paths : sequence of Path
+        :func:`search_segment`'s files, in the segments' order.
+    detections_paths : sequence of Path
+        Each segment's detections, written as jsonl (frame indices of the
+        whole video, track ids of the whole video).
+    options : fastdet.batch.settings.BatchSettings
+    detector : fastdet.Detector
+        The worker's detector (only its heat and box steps run).
+
+    Returns
+    -------
+    list of dict
+        Per segment: ``frames``, ``boxes`` and ``track_ids`` (sorted).
+
+    Raises
+    ------
+    InputError
+        When the segments do not follow each other, or the pipeline would
+        search a frame whose hits are missing.
+    """
+    pipeline = VideoPipeline(detector, options.track_config)
+    results, expected_start, blank = [], 0, None
+    for hits_path, detections_path in zip(hits_paths, detections_paths):
+        with np.load(hits_path) as part:
+            data = {name: part[name] for name in part.files}
+        start, frames = int(data["start"]), int(data["frames"])
+        if start != expected_start:
+            raise InputError(f"{hits_path}: the segment starts at frame {start}, "
+                             f"not {expected_start}")
+        width, height = (int(v) for v in data["size"])
+        if blank is None or blank.shape[:2] != (height, width):
+            # The frame a pipeline is given with its hits: without patch
+            # tracking nothing reads its pixels, only its size.
+            blank = np.zeros((height, width, 3), np.uint8)
+        hits_of = _hits_by_frame(data)
+        boxes, track_ids = 0, set()
+        with contextlib.ExitStack() as stack:
+            writer = stack.enter_context(DetectionWriter(detections_path, "jsonl"))
+            for at in range(start, start + frames):
+                hits = hits_of.get(at)
+                if hits is None and pipeline.wants_frame:
+                    raise InputError(f"{hits_path}: frame {at} is searched but has no hits")
+                detections = pipeline.process(None if hits is None else blank, hits=hits)
+                writer.write(at, detections)
+                boxes += len(detections)
+                track_ids.update(detections.track_id.tolist())
+        results.append({"frames": frames, "boxes": boxes, "track_ids": sorted(track_ids)})
+        expected_start = start + frames
+    return results
+
+
+def _hits_by_frame(data):
+    """``{frame index: Hits}`` of one segment's saved arrays."""
+    ends = np.cumsum(data["counts"])
+    begins = ends - data["counts"]
+    return {int(at): Hits(data["boxes"][b:e], data["scores"][b:e], data["scale_index"][b:e],
+                          int(windows))
+            for at, b, e, windows in zip(data["index"], begins, ends, data["windows"])}
