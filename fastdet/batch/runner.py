@@ -310,8 +310,12 @@ class _SegmentedVideo:
     def _replay(self):
         """One task runs every segment's hits through one pipeline, in order."""
         count = len(self.results)
+        # The parts are for drawing the boxes; the detections file is written whole here.
+        drawn = self.outputs.video is not None
         job = {"hits": [str(self._part(k, ".hits.npz")) for k in range(count)],
-               "detections": [str(self._part(k, ".jsonl")) for k in range(count)]}
+               "detections": [str(self._part(k, ".jsonl")) if drawn else None
+                              for k in range(count)],
+               "whole": self.outputs.detections and str(self.outputs.detections)}
         future = self.run.submit(replay_task, self.run.settings.name, job,
                                  key=f"{self.video.key}-replay")
         self._tags[future.key] = ("replay", None)
@@ -338,7 +342,7 @@ class _SegmentedVideo:
             self.results[k] = dict(self.results[k], **segment)
         self.maps = [IdMap.identity()] * len(self.results)
         if self.outputs.video is None:
-            return [self._merge()]
+            return self._finish()
         return [self._render(k) for k in range(len(self.segments))]
 
     def _detect(self, k, order=None):
@@ -440,7 +444,10 @@ class _SegmentedVideo:
                   "detections": str(self._part(k, ".jsonl")), "ids": self.maps[k].to_dict()}
                  for k in range(len(self.segments))]
         outputs = {"video": self.outputs.video and str(self.outputs.video),
-                   "detections": self.outputs.detections and str(self.outputs.detections)}
+                   # Without warm-ups the replay wrote the detections file already.
+                   "detections": (str(self.outputs.detections)
+                                  if self.outputs.detections and not self.run.split_search
+                                  else None)}
         job = {"parts": parts, "outputs": outputs, "format": self.run.settings.detections_format}
         future = self.run.submit(merge_task, job, key=f"{self.video.key}-merge")
         self._tags[future.key] = ("merge", None)

@@ -110,19 +110,24 @@ def _joined(arrays, dtype, empty_shape=(0,)):
                                                                                     dtype)
 
 
-def replay_segments(hits_paths, detections_paths, options, *, detector):
+def replay_segments(hits_paths, detections_paths, options, *, detector, whole=None):
     """Phase 2: every segment's hits through one pipeline, in frame order.
 
     Parameters
     ----------
     hits_paths : sequence of Path
         :func:`search_segment`'s files, in the segments' order.
-    detections_paths : sequence of Path
+    detections_paths : sequence of Path or None
         Each segment's detections, written as jsonl (frame indices of the
-        whole video, track ids of the whole video).
+        whole video, track ids of the whole video), for drawing them; ``None``:
+        not written.
     options : fastdet.batch.settings.BatchSettings
+        Its track configuration and detections format.
     detector : fastdet.Detector
         The worker's detector (only its heat and box steps run).
+    whole : Path, optional
+        The video's detections file, in ``options.detections_format``: the
+        same file a whole-video run writes (written once complete).
 
     Returns
     -------
@@ -137,33 +142,46 @@ def replay_segments(hits_paths, detections_paths, options, *, detector):
     """
     pipeline = VideoPipeline(detector, options.track_config)
     results, expected_start, blank = [], 0, None
-    for hits_path, detections_path in zip(hits_paths, detections_paths):
-        with np.load(hits_path) as part:
-            data = {name: part[name] for name in part.files}
-        start, frames = int(data["start"]), int(data["frames"])
-        if start != expected_start:
-            raise InputError(f"{hits_path}: the segment starts at frame {start}, "
-                             f"not {expected_start}")
-        width, height = (int(v) for v in data["size"])
-        if blank is None or blank.shape[:2] != (height, width):
-            # The frame a pipeline is given with its hits: without patch
-            # tracking nothing reads its pixels, only its size.
-            blank = np.zeros((height, width, 3), np.uint8)
-        hits_of = _hits_by_frame(data)
-        boxes, track_ids = 0, set()
-        with contextlib.ExitStack() as stack:
-            writer = stack.enter_context(DetectionWriter(detections_path, "jsonl"))
-            for at in range(start, start + frames):
-                hits = hits_of.get(at)
-                if hits is None and pipeline.wants_frame:
-                    raise InputError(f"{hits_path}: frame {at} is searched but has no hits")
-                detections = pipeline.process(None if hits is None else blank, hits=hits)
-                writer.write(at, detections)
-                boxes += len(detections)
-                track_ids.update(detections.track_id.tolist())
-        results.append({"frames": frames, "boxes": boxes, "track_ids": sorted(track_ids)})
-        expected_start = start + frames
+    with contextlib.ExitStack() as outputs:
+        everything = (None if whole is None else
+                      outputs.enter_context(DetectionWriter(whole, options.detections_format)))
+        for hits_path, detections_path in zip(hits_paths, detections_paths):
+            result, blank = _replay_one(pipeline, hits_path, detections_path, everything,
+                                        expected_start, blank)
+            results.append(result)
+            expected_start += result["frames"]
     return results
+
+
+def _replay_one(pipeline, hits_path, detections_path, everything, expected_start, blank):
+    """One segment of :func:`replay_segments`: its result, and the blank frame of its size."""
+    with np.load(hits_path) as part:
+        data = {name: part[name] for name in part.files}
+    start, frames = int(data["start"]), int(data["frames"])
+    if start != expected_start:
+        raise InputError(f"{hits_path}: the segment starts at frame {start}, "
+                         f"not {expected_start}")
+    width, height = (int(v) for v in data["size"])
+    if blank is None or blank.shape[:2] != (height, width):
+        # The frame a pipeline is given with its hits: without patch
+        # tracking nothing reads its pixels, only its size.
+        blank = np.zeros((height, width, 3), np.uint8)
+    hits_of = _hits_by_frame(data)
+    boxes, track_ids = 0, set()
+    with contextlib.ExitStack() as stack:
+        writers = [] if everything is None else [everything]
+        if detections_path is not None:
+            writers.append(stack.enter_context(DetectionWriter(detections_path, "jsonl")))
+        for at in range(start, start + frames):
+            hits = hits_of.get(at)
+            if hits is None and pipeline.wants_frame:
+                raise InputError(f"{hits_path}: frame {at} is searched but has no hits")
+            detections = pipeline.process(None if hits is None else blank, hits=hits)
+            for writer in writers:
+                writer.write(at, detections)
+            boxes += len(detections)
+            track_ids.update(detections.track_id.tolist())
+    return {"frames": frames, "boxes": boxes, "track_ids": sorted(track_ids)}, blank
 
 
 def _hits_by_frame(data):

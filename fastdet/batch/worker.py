@@ -173,14 +173,16 @@ def replay_task(name, job):
     """Phase 2 of a segmented video without patch tracking (:func:`~.split_search.replay_segments`).
 
     ``job`` holds ``hits`` and ``detections``: per segment, the file its
-    search wrote and its detections to write.
+    search wrote and its detections to write for drawing (or ``None``); and
+    ``whole``: the video's detections file (or ``None``).
     """
     started = time.time()
     worker, plugin = _setup(name)
     try:
         segments = replay_segments([Path(p) for p in job["hits"]],
-                                   [Path(p) for p in job["detections"]], plugin.settings,
-                                   detector=plugin.detector())
+                                   [p and Path(p) for p in job["detections"]], plugin.settings,
+                                   detector=plugin.detector(),
+                                   whole=job["whole"] and Path(job["whole"]))
         result = {"status": "done", "segments": segments}
     except (FastdetError, OSError) as exc:
         result = _failed(exc)

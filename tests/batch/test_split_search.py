@@ -17,13 +17,13 @@ def _whole(video, settings, detector, target):
     return process_one(video, OutputPaths(None, target, None), settings, detector=detector)
 
 
-def _split(video, bounds, settings, detector, folder):
+def _split(video, bounds, settings, detector, folder, whole=None):
     hits, parts = [], []
     for k, frame_range in enumerate(bounds):
         hits.append(folder / f"segment{k}.hits.npz")
         parts.append(folder / f"segment{k}.jsonl")
         search_segment(video, frame_range, hits[-1], settings, detector=detector)
-    return replay_segments(hits, parts, settings, detector=detector), parts
+    return replay_segments(hits, parts, settings, detector=detector, whole=whole), parts
 
 
 def _joined(parts, target):
@@ -49,14 +49,18 @@ def test_the_test_video_in_segments_equals_the_whole_run(data_dir, every, tmp_pa
     assert sorted(set().union(*(r["track_ids"] for r in results))) == whole["track_ids"]
 
 
-def test_stub_detector_segments_equal_the_whole_run(blocks_video, tmp_path):
-    settings = make_settings()
-    _whole(blocks_video, settings, BlockDetector(), tmp_path / "whole.jsonl")
+@pytest.mark.parametrize("fmt", ["jsonl", "csv", "mot"])
+def test_stub_detector_segments_equal_the_whole_run(blocks_video, fmt, tmp_path):
+    settings = make_settings(format=fmt)
+    _whole(blocks_video, settings, BlockDetector(), tmp_path / "whole.out")
     results, parts = _split(blocks_video, [(0, 40), (40, 75), (75, None)], settings,
-                            BlockDetector(), tmp_path)
+                            BlockDetector(), tmp_path, whole=tmp_path / "replayed.out")
     assert [r["frames"] for r in results] == [40, 35, 15]
-    assert filecmp.cmp(_joined(parts, tmp_path / "joined.jsonl"), tmp_path / "whole.jsonl",
-                       shallow=False)
+    # The video's file in its format, and the jsonl parts the boxes are drawn from.
+    assert filecmp.cmp(tmp_path / "replayed.out", tmp_path / "whole.out", shallow=False)
+    if fmt == "jsonl":
+        assert filecmp.cmp(_joined(parts, tmp_path / "joined.jsonl"), tmp_path / "whole.out",
+                           shallow=False)
 
 
 def test_a_searched_frame_without_hits_is_an_error(blocks_video, tmp_path):
