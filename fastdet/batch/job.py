@@ -111,8 +111,8 @@ def _needed_frames(pipeline, first, guards):
     return lambda index: index in guards or searched(index)
 
 
-class _Progress:
-    """Calls ``callback(frames_done)`` at most twice a second."""
+class ThrottledProgress:
+    """Calls ``callback(frames_done)`` at most twice a second (each call is a Dask event)."""
 
     def __init__(self, callback):
         self._callback = callback
@@ -234,7 +234,7 @@ def process_one(input_path, outputs, options, frame_range=None, warmup_frames=0,
         if outputs.detections is not None:
             det_out = stack.enter_context(
                 DetectionWriter(outputs.detections, detections_format or options.detections_format))
-        progress = _Progress(callback) if callback is not None else None
+        progress = ThrottledProgress(callback) if callback is not None else None
         done = boxes = 0
         track_ids = set()
         try:

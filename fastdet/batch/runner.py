@@ -262,14 +262,15 @@ class _SegmentedVideo:
 
     Without patch tracking (:mod:`fastdet.batch.split_search`): every
     segment's search (:func:`~fastdet.batch.worker.search_task`), then one
-    task runs their hits through one pipeline into each segment's jsonl part
-    (:func:`~fastdet.batch.worker.replay_task`), in whole-video ids.  With
-    patch tracking: every segment's detections after a warm-up
-    (:func:`~fastdet.batch.worker.video_task`
-    into jsonl parts); the boundary checks, left to right, redoing a segment
-    with its tracks reordered or a longer warm-up when its check fails (a
-    warm-up from frame 0 is the whole-video run itself); with a video output,
-    then (both ways) each segment's boxes drawn in whole-video ids
+    task runs their hits through one pipeline
+    (:func:`~fastdet.batch.worker.replay_task`) into the detections file
+    and, for a video output, each segment's jsonl part.  With patch
+    tracking: every segment's detections after a warm-up
+    (:func:`~fastdet.batch.worker.video_task` into jsonl parts); the
+    boundary checks, left to right, redoing a segment with its tracks
+    reordered or a longer warm-up when its check fails (a warm-up from frame
+    0 is the whole-video run itself).  Then, either way, with a video output:
+    each segment's boxes drawn in whole-video ids
     (:func:`~fastdet.batch.worker.render_task`); the merge.
     """
 

@@ -35,6 +35,7 @@ from ..video.detection_files import DetectionWriter
 from ..video.frame_arrays import FrameConverter
 from ..video.pipeline import VideoPipeline
 from ..video.source import VideoSource
+from .job import ThrottledProgress
 
 
 def searched(index, track_config):
@@ -76,6 +77,7 @@ def search_segment(input_path, frame_range, hits_path, options, *, detector, cal
     start, end = frame_range
     index, boxes, scores, scales, windows = [], [], [], [], []
     converter = FrameConverter()
+    progress = ThrottledProgress(callback) if callback is not None else None
     with VideoSource(input_path, start, end, threads=options.threads) as reader:
         rows = VideoPipeline(detector, track_config).rows_read(reader.size)
         frames = reader.decoded_frames(
@@ -92,9 +94,11 @@ def search_segment(input_path, frame_range, hits_path, options, *, detector, cal
             boxes.append(hits.boxes)
             scores.append(hits.scores)
             scales.append(hits.scale_index)
-            if callback is not None:
-                callback(done)
+            if progress is not None:
+                progress.update(done)
         fps, size = reader.fps, list(reader.size)
+    if callback is not None:
+        callback(done)
     with atomic_path(hits_path) as temporary:
         with open(temporary, "wb") as file:
             np.savez(file, start=start, frames=done, size=np.asarray(size, np.int64),

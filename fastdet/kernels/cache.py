@@ -205,6 +205,7 @@ def _tolerate_damaged_entries():
             except Exception as flush_exc:  # noqa: BLE001
                 log.info("cannot reset it (%s): it stays uncached", flush_exc)
                 self.disable()
+            import_numba_arraymath()      # before the compile that follows
             return None
 
     def save_overload(self, sig, data):
