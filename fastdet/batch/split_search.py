@@ -38,11 +38,6 @@ from ..video.source import VideoSource
 from .job import ThrottledProgress
 
 
-def searched(index, track_config):
-    """Whether a pipeline without patch tracking fully searches frame ``index``."""
-    return index % (track_config.search_period or 1) == 0
-
-
 def search_segment(input_path, frame_range, hits_path, options, *, detector, callback=None):
     """Phase 1: the detector's hits of a segment's searched frames, saved to ``hits_path``.
 
@@ -79,14 +74,15 @@ def search_segment(input_path, frame_range, hits_path, options, *, detector, cal
     converter = FrameConverter()
     progress = ThrottledProgress(callback) if callback is not None else None
     with VideoSource(input_path, start, end, threads=options.threads) as reader:
-        rows = VideoPipeline(detector, track_config).rows_read(reader.size)
-        frames = reader.decoded_frames(
-            None if (track_config.search_period or 1) == 1
-            else (lambda i: searched(i, track_config)))
+        pipeline = VideoPipeline(detector, track_config)
+        rows = pipeline.rows_read(reader.size)
+        # The whole video's search schedule (it starts at frame 0); None: every frame.
+        needed = pipeline.frames_needed(0)
+        frames = reader.decoded_frames(needed)
         done = 0
         for done, frame in enumerate(frames, 1):
             at = start + done - 1
-            if frame is None or not searched(at, track_config):
+            if frame is None or (needed is not None and not needed(at)):
                 continue
             hits = detector.hits(converter.to_bgr(frame, rows))
             index.append(at)
