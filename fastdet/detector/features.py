@@ -213,14 +213,14 @@ class FeatureLayout:
 def convert_color(image_bgr, color_space, out=None):
     """Convert a BGR uint8 image to ``color_space`` (uint8, 3 channels).
 
-    HLS images whose width is a multiple of 8 (the detector's 1280-pixel band,
-    64-pixel training crops) take :func:`fastdet.kernels.convert.bgr_to_hls`,
-    bit-identical to OpenCV there and about twice as fast; everything else
-    goes to ``cv2.cvtColor``.  ``out``: a C-contiguous uint8 array of the
-    image's shape to write into.
+    uint8 BGR images to HLS take :func:`fastdet.kernels.convert.bgr_to_hls`,
+    bit-identical to OpenCV's AVX2 code (all 2**24 colours, on its vector and
+    on its scalar pixels) and about twice as fast; everything else goes to
+    ``cv2.cvtColor``.  ``out``: a C-contiguous uint8 array of the image's
+    shape to write into.
     """
     if (color_space == "HLS" and image_bgr.dtype == np.uint8 and image_bgr.ndim == 3
-            and image_bgr.shape[2] == 3 and image_bgr.shape[1] % 8 == 0):
+            and image_bgr.shape[2] == 3):
         return bgr_to_hls(image_bgr, out)
     return cv2.cvtColor(image_bgr, COLOR_CODES[color_space], dst=out)
 

@@ -1,6 +1,6 @@
 """BGR to HLS conversion of uint8 images, as OpenCV's
-``cv2.cvtColor(image, cv2.COLOR_BGR2HLS)``: bit-identical when the width is
-a multiple of 8 (see *Limitation*), which is when fastdet uses it.
+``cv2.cvtColor(image, cv2.COLOR_BGR2HLS)``: bit-identical at every width
+(see *OpenCV's two rules*).
 
 OpenCV's rule for 8-bit images, as reproduced here (all float32 unless noted;
 the tests compare every one of the 2**24 colours with OpenCV):
@@ -24,12 +24,18 @@ fused multiply-add is emulated in the scalar tail loop as
 ``float32(float64(hd) * float64(inv) + float64(hpart))`` (the product is exact
 in float64); the tests check both paths on every colour.
 
-Limitation: OpenCV itself is not uniform.  It converts each row in chunks of
-256 pixels with SIMD code for whole runs of 8 and scalar code for the rest of
-a chunk (``width % 8`` pixels per chunk, none for widths that are multiples
-of 8, such as the detector's 1280).  Those pixels take an approximation of
-OpenCV's scalar rule here, which still differs by 1 in hue for about 800 of
-the 2**24 colours (see the xfail test).
+OpenCV's two rules: OpenCV itself is not uniform.  It converts each row in
+chunks of 256 pixels with SIMD code for whole runs of 8 and scalar code for
+the rest of a chunk (``width % 8`` pixels per chunk, none for widths that
+are multiples of 8, such as the detector's 1280).  Its scalar code, as its
+AVX2 build compiles it, rounds differently: ``s`` divides by
+``(2 - vmax) - vmin``; the red branch's hue is the rounded product
+``hd * inv`` plus 360 (a second rounding) when negative, while the green and
+blue branches' ``hd * inv + 120`` and ``+ 240`` are fused into one FMA by the
+compiler.  The tail loop applies that rule to those pixels; the tests check
+it on every colour (``test_all_colours_tail_path``, width 15).  On CPUs
+without AVX2, OpenCV runs builds without FMA, which round both kinds of
+pixels differently again; every machine fastdet has run on has AVX2.
 """
 
 import numpy as np
@@ -213,12 +219,16 @@ def _hls_scalar(row, dest, x, simd):
             # colour.
             h = np.float32(np.float64(hd) * np.float64(inv) + np.float64(hpart))
         else:
-            # OpenCV's scalar code: separate rounding, +360 when negative.
-            if hpart == np.float32(360.0):
-                hpart = np.float32(0.0)
+            # OpenCV's scalar code as its AVX2 build compiles it (the compiler
+            # fuses `hd * inv + 120` and `+ 240` into one FMA, but not the
+            # red branch's product, which the `h < 0` test also reads):
+            # matched on every colour by test_all_colours_tail_path.
             if not l < np.float32(0.5):
                 s = diff / ((np.float32(2.0) - vmax) - vmin)
-            h = hd * inv + hpart
+            if vmax == r:
+                h = hd * inv
+            else:
+                h = np.float32(np.float64(hd) * np.float64(inv) + np.float64(hpart))
             if h < np.float32(0.0):
                 h += np.float32(360.0)
     dest[x, 0] = np.uint8(min(max(np.rint(h * np.float32(0.5)), np.float32(0)),
@@ -249,9 +259,8 @@ def _check(image, out):
 def bgr_to_hls(image, out=None):
     """``cv2.cvtColor(image, cv2.COLOR_BGR2HLS)`` for uint8 images.
 
-    Bit-identical to OpenCV when the width is a multiple of 8; otherwise the
-    last ``width % 8`` pixels of each 256-pixel chunk of a row may differ by
-    1 in hue for rare colours (see the module notes).
+    Bit-identical to OpenCV's AVX2 code at every width, the pixels it
+    converts with its scalar code included (see the module notes).
 
     Parameters
     ----------

@@ -401,7 +401,8 @@ def test_window_scores_on_a_random_odd_sized_frame():
 @pytest.mark.parametrize("width", [64, 1280, 8, 13, 1283])
 @pytest.mark.parametrize("space", ["HLS", "YCrCb"])
 def test_convert_color_equals_opencv(width, space):
-    # HLS widths that are multiples of 8 take fastdet's own kernel, the rest cv2.
+    # HLS takes fastdet's own kernel at every width (its vector blocks and its
+    # OpenCV-scalar tail), other spaces cv2.
     rng = np.random.default_rng(width)
     image = rng.integers(0, 256, (37, width, 3), dtype=np.uint8)
     expected = cv2.cvtColor(image, getattr(cv2, f"COLOR_BGR2{space}"))
