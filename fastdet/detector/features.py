@@ -216,8 +216,8 @@ def convert_color(image_bgr, color_space, out=None):
     uint8 BGR images to HLS take :func:`fastdet.kernels.convert.bgr_to_hls`,
     bit-identical to OpenCV's AVX2 code (all 2**24 colours, on its vector and
     on its scalar pixels) and faster (1.3x one-thread OpenCV with AVX2, 2x
-    with AVX-512); everything else goes to ``cv2.cvtColor``.  ``out``: a C-contiguous uint8 array of the image's
-    shape to write into.
+    with AVX-512); everything else goes to ``cv2.cvtColor``.  ``out``: a
+    C-contiguous uint8 array of the image's shape to write into.
     """
     if (color_space == "HLS" and image_bgr.dtype == np.uint8 and image_bgr.ndim == 3
             and image_bgr.shape[2] == 3):
