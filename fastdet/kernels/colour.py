@@ -70,6 +70,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ._llvm import HAVE_AVX512BW, box_sums, load_vector, store_vector
+from .alloc import empty
 
 _C = uint64(3)
 _BYTE = uint64(255)
@@ -428,10 +429,10 @@ def _colour_maps(path, image, lut, tile, factor, want_tiles, want_box, tiles, bo
     box_h, box_w = box.shape[0], box.shape[1]
     box_flat = box.reshape(box.size)
     quads = tile % 4 == 0
-    table = np.empty(3 * _BINS, np.float32)
+    table = empty(3 * _BINS, np.float32)
     if path == PATH_AVX512 and not (_CAN_AVX512BW and want_tiles and _bin_table(lut_flat, table)):
         path = PATH_SCALAR
-    columns = np.empty(width if path == PATH_AVX512 else 0, np.float32)
+    columns = empty(width if path == PATH_AVX512 else 0, np.float32)
     # Box rows written so far; an int64 from the start, not the literal 0,
     # so that _box_rows is compiled once.
     done = np.int64(0)

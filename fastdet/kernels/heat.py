@@ -51,6 +51,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .alloc import empty, zeros
+
 __all__ = ["accumulate_heat", "accumulate_heat_into", "box_heat_region", "decay_heat",
            "heat_cells"]
 
@@ -73,7 +75,7 @@ def _edge_starts(index, size):
     for v in range(size):
         if index[v] != 0:
             count += 1
-    starts = np.empty(count + 1, dtype=np.int64)
+    starts = empty(count + 1, dtype=np.int64)
     cell = 0
     for v in range(size):
         if index[v] != 0:
@@ -129,9 +131,9 @@ def heat_cells(boxes, weights, x0, y0, height, width):
         raise ValueError("boxes must have shape (N, 4)")
     if weights.shape[0] != n_boxes:
         raise ValueError("weights must have one entry per box")
-    clipped = np.empty((n_boxes, 4), dtype=np.int64)
-    col_index = np.zeros(width + 1, dtype=np.int32)
-    row_index = np.zeros(height + 1, dtype=np.int32)
+    clipped = empty((n_boxes, 4), dtype=np.int64)
+    col_index = zeros(width + 1, dtype=np.int32)
+    row_index = zeros(height + 1, dtype=np.int32)
     col_index[0] = 1
     row_index[0] = 1
     for i in range(n_boxes):
@@ -157,7 +159,7 @@ def heat_cells(boxes, weights, x0, y0, height, width):
     # The difference array over edge indices; index n_rows / n_cols stands
     # for the map's far edge, which no cell reaches.  Boxes are added in
     # input order, as the full-resolution method would.
-    diff = np.zeros((n_rows + 1, n_cols + 1), dtype=np.float64)
+    diff = zeros((n_rows + 1, n_cols + 1), dtype=np.float64)
     for i in range(n_boxes):
         x1, y1, x2, y2 = clipped[i, 0], clipped[i, 1], clipped[i, 2], clipped[i, 3]
         if x2 <= x1 or y2 <= y1:
@@ -170,8 +172,8 @@ def heat_cells(boxes, weights, x0, y0, height, width):
         diff[r2, c1] -= weight
         diff[r2, c2] += weight
 
-    cells = np.empty((n_rows, n_cols), dtype=np.float32)
-    column_sum = np.zeros(n_cols, dtype=np.float64)
+    cells = empty((n_rows, n_cols), dtype=np.float32)
+    column_sum = zeros(n_cols, dtype=np.float64)
     for r in range(n_rows):
         row_sum = 0.0
         for c in range(n_cols):
@@ -286,7 +288,7 @@ def accumulate_heat(boxes, weights, height, width):
            [1. , 1.5, 0.5]], dtype=float32)
     """
     row_starts, col_starts, cells = heat_cells(boxes, weights, 0, 0, height, width)
-    heat = np.empty((height, width), dtype=np.float32)
+    heat = empty((height, width), dtype=np.float32)
     _paint(heat, row_starts, col_starts, cells)
     return heat
 
@@ -325,7 +327,7 @@ def box_heat_region(boxes, weights, width, height):
     if boxes.shape[1] != 4:
         raise ValueError("boxes must have shape (N, 4)")
     if n_boxes == 0:
-        return np.zeros((0, 0), dtype=np.float32), 0, 0
+        return zeros((0, 0), dtype=np.float32), 0, 0
     x0, y0 = np.int64(boxes[0, 0]), np.int64(boxes[0, 1])
     x1, y1 = np.int64(boxes[0, 2]), np.int64(boxes[0, 3])
     for i in range(1, n_boxes):
@@ -338,7 +340,7 @@ def box_heat_region(boxes, weights, width, height):
     if x1 < x0 or y1 < y0:
         raise ValueError("negative dimensions: every box lies beyond the frame")
     row_starts, col_starts, cells = heat_cells(boxes, weights, x0, y0, y1 - y0, x1 - x0)
-    heat = np.empty((y1 - y0, x1 - x0), dtype=np.float32)
+    heat = empty((y1 - y0, x1 - x0), dtype=np.float32)
     _paint(heat, row_starts, col_starts, cells)
     return heat, x0, y0
 

@@ -45,6 +45,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ._llvm import HAVE_AVX2, HAVE_AVX512F, load_vector, store_vector
+from .alloc import empty
 from .cache import kernel_cache_dir
 from .hog_float64 import float64_cell_histograms
 
@@ -139,13 +140,13 @@ def _histogram_cell_row(image, cell_row, ppc_y, ppc_x, ncx, nbins, merge_mode,
     width = image.shape[1]
     channels = image.shape[2]
     used = ncx * ppc_x
-    gx = np.empty(width, dtype=np.float32)
-    gy = np.empty(width, dtype=np.float32)
-    best_gx = np.empty(width, dtype=np.float32)
-    best_gy = np.empty(width, dtype=np.float32)
-    best_sq = np.empty(width, dtype=np.float64)
-    magnitude = np.empty(width, dtype=np.float32)
-    bins = np.empty(width, dtype=np.int64)
+    gx = empty(width, dtype=np.float32)
+    gy = empty(width, dtype=np.float32)
+    best_gx = empty(width, dtype=np.float32)
+    best_gy = empty(width, dtype=np.float32)
+    best_sq = empty(width, dtype=np.float64)
+    magnitude = empty(width, dtype=np.float32)
+    bins = empty(width, dtype=np.int64)
     row_out = out[cell_row]
     row_out[:] = 0.0
     scale = np.float32(1.0 / (ppc_y * ppc_x))
@@ -288,7 +289,7 @@ def _histogram_cell_row_u8(image, cell_row, ppc_y, ppc_x, ncx, nbins, bin_lut, t
 def _slot_targets(ncx, ppc_x, channels, nbins):
     """Histogram slot base of every element of a flat row (pixel-major)."""
     used = ncx * ppc_x * channels
-    target = np.empty(used, dtype=np.int32)
+    target = empty(used, dtype=np.int32)
     for j in range(used):
         target[j] = ((j // channels // ppc_x) * channels + j % channels) * (nbins + 1)
     return target
@@ -299,9 +300,9 @@ def _cell_rows_u8(image, first, stop, ppc_y, ppc_x, nbins, bin_lut, ncx, layout,
     """Cell rows ``first`` .. ``stop - 1`` with one set of scratch buffers."""
     channels = image.shape[2]
     target = _slot_targets(ncx, ppc_x, channels, nbins)
-    index = np.empty(target.size, dtype=np.int32)
-    magnitude = np.empty(target.size, dtype=np.float32)
-    acc = np.empty(ncx * channels * (nbins + 1), dtype=np.float32)
+    index = empty(target.size, dtype=np.int32)
+    magnitude = empty(target.size, dtype=np.float32)
+    acc = empty(ncx * channels * (nbins + 1), dtype=np.float32)
     for cell_row in range(first, stop):
         _histogram_cell_row_u8(image, cell_row, ppc_y, ppc_x, ncx, nbins, bin_lut, target,
                                index, magnitude, acc, layout, out)
@@ -977,9 +978,9 @@ def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out):
     outputs = _GROUP_CELLS * channels
     # Where the block stores each (bin, cell, channel) mean.
     slot = _SLOTS3 if channels == 3 else _SLOTS1
-    scratch = np.empty(_SCRATCH3 if channels == 3 else _SCRATCH1, dtype=np.float32)
+    scratch = empty(_SCRATCH3 if channels == 3 else _SCRATCH1, dtype=np.float32)
     rest = ncx - groups * _GROUP_CELLS
-    acc = np.empty(max(rest, 1) * channels * (nbins + 1), dtype=np.float32)
+    acc = empty(max(rest, 1) * channels * (nbins + 1), dtype=np.float32)
     scale = np.float32(1.0 / (ppc_y * ppc_x))
     c64 = uint64(channels)
     phase_step, per_phase = layout[4], layout[5]

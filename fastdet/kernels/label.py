@@ -66,6 +66,8 @@ import numpy as np
 from numba.core import types
 from numba.extending import overload
 
+from .alloc import empty, zeros
+
 __all__ = [
     "component_boxes",
     "component_core_boxes",
@@ -124,8 +126,8 @@ def label_components_kernel(mask, eight_connected):
         Number of components.
     """
     height, width = mask.shape
-    labels = np.empty((height, width), dtype=np.int32)
-    parent = np.empty(_parent_size(height, width), dtype=np.int32)
+    labels = empty((height, width), dtype=np.int32)
+    parent = empty(_parent_size(height, width), dtype=np.int32)
     count = _label_into(mask, eight_connected, labels, parent)
     return labels, count
 
@@ -269,7 +271,7 @@ def label_components(mask, connectivity):
 @numba.njit(cache=True, nogil=True, inline="always")
 def _sentinel_boxes(count, width, height):
     """Boxes with inverted bounds, so the first included pixel sets every bound."""
-    boxes = np.empty((count, 4), dtype=np.int32)
+    boxes = empty((count, 4), dtype=np.int32)
     boxes[:, 0] = width
     boxes[:, 1] = height
     boxes[:, 2] = 0
@@ -508,8 +510,8 @@ def constant_runs(bits):
         identical over all rows, then ``W``.
     """
     height, width = bits.shape
-    row_starts = np.empty(height + 1, dtype=np.int64)
-    new_column = np.zeros(width + 1, dtype=np.bool_)
+    row_starts = empty(height + 1, dtype=np.int64)
+    new_column = zeros(width + 1, dtype=np.bool_)
     new_column[0] = True
     n_rows = 0
     for y in range(height):
@@ -529,7 +531,7 @@ def constant_runs(bits):
     n_cols = 0
     for x in range(width):
         n_cols += new_column[x]
-    col_starts = np.empty(n_cols + 1, dtype=np.int64)
+    col_starts = empty(n_cols + 1, dtype=np.int64)
     n_cols = 0
     for x in range(width):
         if new_column[x]:
@@ -557,9 +559,9 @@ def _car_sized_parts(values, mask, row_units, col_units, levels, min_width, min_
         ``min_width x min_height`` units; ``n`` is 0 when no level splits.
     """
     height, width = values.shape
-    above = np.empty((height, width), dtype=np.uint8)
-    labels = np.empty((height, width), dtype=np.int32)
-    parent = np.empty(_parent_size(height, width), dtype=np.int32)
+    above = empty((height, width), dtype=np.uint8)
+    labels = empty((height, width), dtype=np.int32)
+    parent = empty(_parent_size(height, width), dtype=np.int32)
     for level_index in range(levels.size):
         level = levels[level_index]
         for i in range(height):
@@ -571,7 +573,7 @@ def _car_sized_parts(values, mask, row_units, col_units, levels, min_width, min_
                 break
             continue
         parts = component_boxes(labels, count)
-        car_sized = np.zeros(count, dtype=np.bool_)
+        car_sized = zeros(count, dtype=np.bool_)
         n_car_sized = 0
         for k in range(count):
             car_sized[k] = (col_units[parts[k, 2]] - col_units[parts[k, 0]] >= min_width
@@ -579,7 +581,7 @@ def _car_sized_parts(values, mask, row_units, col_units, levels, min_width, min_
             n_car_sized += car_sized[k]
         if n_car_sized >= 2:
             return parts[car_sized]
-    return np.zeros((0, 4), dtype=np.int32)
+    return zeros((0, 4), dtype=np.int32)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -599,8 +601,8 @@ def _samples(starts, first, last, index0, step):
     first sample number of each (then the sample count).
     """
     n_samples = (last - first + step - 1) // step
-    cells = np.empty(n_samples, dtype=np.int64)
-    units = np.empty(n_samples + 1, dtype=np.int64)
+    cells = empty(n_samples, dtype=np.int64)
+    units = empty(n_samples + 1, dtype=np.int64)
     n = 0
     cell = index0
     for sample in range(n_samples):
@@ -625,7 +627,7 @@ def split_levels(peak, threshold64, fractions):
     ``fractions`` (the subtraction is float32 under NumPy 2 promotion).
     """
     rise = np.float64(np.float32(peak) - np.float32(threshold64))
-    levels = np.empty(fractions.size, dtype=np.float32)
+    levels = empty(fractions.size, dtype=np.float32)
     for index in range(fractions.size):
         levels[index] = np.float32(threshold64 + rise * fractions[index])
     return levels
@@ -688,7 +690,7 @@ def heat_blobs(heat, origin_x, origin_y, threshold, eight_connected, refine, cor
     """
     threshold64 = np.float64(threshold)
     # The threshold rounded to heat's type, as an array assignment rounds it.
-    typed = np.empty(1, dtype=heat.dtype)
+    typed = empty(1, dtype=heat.dtype)
     typed[0] = threshold64
     threshold = typed[0]
     all_rows, all_cols = constant_runs(_bits(heat))
@@ -707,8 +709,8 @@ def heat_blobs(heat, origin_x, origin_y, threshold, eight_connected, refine, cor
     row_starts = all_rows[top:bottom + 2]
     col_starts = all_cols[left:right + 2]
     n_rows, n_cols = bottom + 1 - top, right + 1 - left
-    values = np.empty((n_rows, n_cols), dtype=heat.dtype)
-    mask = np.empty((n_rows, n_cols), dtype=np.uint8)
+    values = empty((n_rows, n_cols), dtype=heat.dtype)
+    mask = empty((n_rows, n_cols), dtype=np.uint8)
     for i in range(n_rows):
         for j in range(n_cols):
             value = heat[row_starts[i], col_starts[j]]
@@ -718,7 +720,7 @@ def heat_blobs(heat, origin_x, origin_y, threshold, eight_connected, refine, cor
 
     cell_boxes = component_boxes(labels, count)
     peaks = component_max(labels, count, values)
-    probed = np.zeros(count, dtype=np.bool_)
+    probed = zeros(count, dtype=np.bool_)
     n_probed = 0
     if split_size >= 0:
         probe_size = max(1, split_size // probe_step)
@@ -730,8 +732,8 @@ def heat_blobs(heat, origin_x, origin_y, threshold, eight_connected, refine, cor
             # The probe's sub-sampled image, runs of samples in one cell merged.
             sample_rows, row_units = _samples(row_starts, y1, y2, cell_boxes[k, 1], probe_step)
             sample_cols, col_units = _samples(col_starts, x1, x2, cell_boxes[k, 0], probe_step)
-            sub_values = np.empty((sample_rows.size, sample_cols.size), dtype=heat.dtype)
-            sub_mask = np.empty((sample_rows.size, sample_cols.size), dtype=np.uint8)
+            sub_values = empty((sample_rows.size, sample_cols.size), dtype=heat.dtype)
+            sub_mask = empty((sample_rows.size, sample_cols.size), dtype=np.uint8)
             for i in range(sample_rows.size):
                 for j in range(sample_cols.size):
                     sub_values[i, j] = values[sample_rows[i], sample_cols[j]]
@@ -742,13 +744,13 @@ def heat_blobs(heat, origin_x, origin_y, threshold, eight_connected, refine, cor
             n_probed += probed[k]
 
     if refine:
-        core = np.empty(count, dtype=np.float32)
+        core = empty(count, dtype=np.float32)
         for k in range(count):
             core[k] = peaks[k] * core_fraction
         cell_boxes = component_core_boxes(labels, count, values, core)
     # An empty core box ([0, 0, 0, 0] in cells) becomes an empty box at the
     # corner of the labelled cells, as at full resolution on the cropped map.
-    boxes = np.empty((count, 4), dtype=np.int32)
+    boxes = empty((count, 4), dtype=np.int32)
     for k in range(count):
         boxes[k, 0] = col_starts[cell_boxes[k, 0]] + origin_x
         boxes[k, 1] = row_starts[cell_boxes[k, 1]] + origin_y

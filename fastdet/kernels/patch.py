@@ -34,6 +34,8 @@ import numba
 import numpy as np
 from numba import uint64
 
+from .alloc import empty, zeros
+
 __all__ = [
     "grey_thumbnail",
     "mask_overlap_search",
@@ -65,11 +67,11 @@ def saturation_mask(image, threshold):
     """
     height, width = image.shape[0], image.shape[1]
     # OpenCV's division table: round((255 << 12) / v), 0 for v == 0.
-    divide = np.zeros(256, dtype=np.int64)
+    divide = zeros(256, dtype=np.int64)
     for v in range(1, 256):
         divide[v] = np.int64(np.floor((255 << _HSV_SHIFT) / v + 0.5))
     half = np.int64(1 << (_HSV_SHIFT - 1))
-    out = np.empty((height, width), dtype=np.uint8)
+    out = empty((height, width), dtype=np.uint8)
     for y in range(height):
         for x in range(width):
             b = np.int64(image[y, x, 0])
@@ -95,7 +97,7 @@ def _popcount(word):
 def _pack_rows(mask, words):
     # Row-wise bitsets: bit (x & 63) of word (x >> 6) is pixel x of the row.
     height, width = mask.shape
-    packed = np.zeros((height, words), dtype=np.uint64)
+    packed = zeros((height, words), dtype=np.uint64)
     for y in range(height):
         for x in range(width):
             if mask[y, x]:
@@ -106,7 +108,7 @@ def _pack_rows(mask, words):
 @numba.njit(cache=True, nogil=True)
 def _summed_area(mask):
     height, width = mask.shape
-    table = np.zeros((height + 1, width + 1), dtype=np.int64)
+    table = zeros((height + 1, width + 1), dtype=np.int64)
     for y in range(height):
         row = np.int64(0)
         for x in range(width):
@@ -243,10 +245,10 @@ def grey_thumbnail(image, factor):
     # The rows of a block row are first summed element-wise over contiguous
     # memory; uint16 holds up to 256 rows of 255 and keeps the vector
     # lanes narrow, which is what makes this pass fast.
-    column_sums = np.zeros(used, dtype=np.uint16)
+    column_sums = zeros(used, dtype=np.uint16)
     scale = np.float32(1.0 / (3 * factor * factor))
     span = factor * 3
-    out = np.empty((out_h, out_w), dtype=np.float32)
+    out = empty((out_h, out_w), dtype=np.float32)
     for by in range(out_h):
         column_sums[:] = 0
         for y in range(by * factor, (by + 1) * factor):

@@ -20,6 +20,8 @@ import math
 import numpy as np
 from numba import njit
 
+from .alloc import empty, zeros
+
 __all__ = ["box_heat_features"]
 
 
@@ -48,10 +50,10 @@ def box_heat_features(heat, origin_x, origin_y, boxes, threshold, frame_width, f
     """
     n_levels = levels.shape[0]
     height_px, width_px = heat.shape
-    columns = np.empty(width_px, np.float64)
-    rows = np.empty(height_px, np.float64)
-    column_peaks = np.empty(width_px, np.float64)
-    row_peaks = np.empty(height_px, np.float64)
+    columns = empty(width_px, np.float64)
+    rows = empty(height_px, np.float64)
+    column_peaks = empty(width_px, np.float64)
+    row_peaks = empty(height_px, np.float64)
     last = out.shape[1]
     for row in range(boxes.shape[0]):
         x1, y1, x2, y2 = boxes[row, 0], boxes[row, 1], boxes[row, 2], boxes[row, 3]
@@ -167,7 +169,7 @@ def refined_edges(boxes, features, weights, frame_widths, out):
     """
     for row in range(boxes.shape[0]):
         x1, y1, x2, y2 = boxes[row, 0], boxes[row, 1], boxes[row, 2], boxes[row, 3]
-        offsets = np.zeros(4)
+        offsets = zeros(4)
         for edge in range(4):
             for k in range(features.shape[1]):
                 offsets[edge] += features[row, k] * weights[edge, k]

@@ -54,6 +54,7 @@ from numba import njit, types, uint64
 from numba.extending import intrinsic
 
 from ._llvm import HAVE_AVX2, HAVE_AVX512BW, HAVE_SSSE3, box_sums, load_vector, store_vector
+from .alloc import empty
 
 #: OpenCV's INTER_RESIZE_COEF_SCALE (11 fractional bits).
 _COEF_SCALE = np.float32(2048)
@@ -510,7 +511,7 @@ def _row_slots(held, upper, lower):
 def _resize(src, first, second, w_first, w_second, base, usable, masks, weights, block_base,
             picks, y_first, y_second, w_y_first, w_y_second, out):
     """The resize with this CPU's best horizontal path, the only one compiled."""
-    rows = np.empty((2, out.shape[1]), dtype=np.int16)
+    rows = empty((2, out.shape[1]), dtype=np.int16)
     held = np.array([-1, -1], dtype=np.int64)
     for dy in range(out.shape[0]):
         upper, lower = y_first[dy], y_second[dy]
@@ -528,7 +529,7 @@ def _resize(src, first, second, w_first, w_second, base, usable, masks, weights,
 def _resize_path(path, src, first, second, w_first, w_second, base, usable, masks, weights,
                  block_base, picks, y_first, y_second, w_y_first, w_y_second, out):
     """:func:`_resize` with any path the CPU has (tests compare every path)."""
-    rows = np.empty((2, out.shape[1]), dtype=np.int16)
+    rows = empty((2, out.shape[1]), dtype=np.int16)
     held = np.array([-1, -1], dtype=np.int64)
     for dy in range(out.shape[0]):
         upper, lower = y_first[dy], y_second[dy]

@@ -37,6 +37,7 @@ from numba import njit, prange, types, uint64
 from numba.extending import intrinsic
 
 from ._llvm import counted_loop, load_vector, splat, store_vector
+from .alloc import empty, zeros
 from .blocks import EPS, NORM_CODES
 from .hog import to_phase_layout
 
@@ -399,7 +400,7 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
     first_block = first_row * step
     stop_block = (stop_row - 1) * step + n
     # Per cell of the band's block rows: the sum a block norm is built from.
-    energy = np.empty(rows * channels * length, dtype=np.float32)
+    energy = empty(rows * channels * length, dtype=np.float32)
     for cy in range(first_block, stop_block + cpb_y - 1):
         for c in range(channels):
             base = uint64((cy * channels + c) * nbins * length)
@@ -407,14 +408,14 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
                           uint64((cy * channels + c) * length))
     per_channel = uint64(cpb_y * cpb_x * nbins)
     # Whole vectors past the last feature: the window dots read that far.
-    normalised = np.zeros(uint64(n_features) * stride + lanes, dtype=np.float32)
+    normalised = zeros(uint64(n_features) * stride + lanes, dtype=np.float32)
     second = np.ones(uint64(channels) * stride + lanes, dtype=np.float32)
     eps32 = np.float32(eps)
     eps_sq = np.float32(eps * eps)
     bias = eps32 if norm_code <= 1 else eps_sq
     row_stride = uint64(channels * nbins * length)
     e_row_stride = uint64(channels * length)
-    scores = np.zeros((stop_row - first_row) * row_len, dtype=np.float32)
+    scores = zeros((stop_row - first_row) * row_len, dtype=np.float32)
     for by in range(first_block, stop_block):
         for c in range(channels):
             c_base = uint64((by * channels + c) * nbins * length)
@@ -595,7 +596,7 @@ def add_spatial_scores(spatial, weights, step_px, out, parallel=False):
 def _add_tile_window_sums(tiles, size, step, out):
     """out[iy, ix] += sum of tiles[iy*step : +size, ix*step : +size]."""
     rows, cols = tiles.shape
-    integral = np.zeros((rows + 1, cols + 1), dtype=np.float64)
+    integral = zeros((rows + 1, cols + 1), dtype=np.float64)
     for y in range(rows):
         running = 0.0
         for x in range(cols):
