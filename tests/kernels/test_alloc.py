@@ -83,3 +83,12 @@ def test_compiling_them_compiles_none_of_numpys_implementations():
     assert any("fresh" in name for name in compiled)
     numpys = [name for name in compiled if "ol_np_" in name or "zero_fill" in name]
     assert numpys == [], numpys
+
+
+def test_a_negative_dimension_is_numpys_error():
+    @numba.njit(cache=False)
+    def negative(n):
+        return zeros((2, n), np.float32), empty(n, np.int32)
+
+    with pytest.raises(ValueError, match="negative dimensions"):
+        negative(-1)
