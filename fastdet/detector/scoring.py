@@ -11,6 +11,7 @@ features' part of the score (:mod:`fastdet.kernels.colour`).
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 
@@ -99,9 +100,10 @@ class ScaleScorer:
 
     Notes
     -----
-    Work arrays are kept per plan object and reused from frame to frame, so
-    one scorer may score different plans concurrently (one thread per plan)
-    but not the same plan twice at once.
+    Work arrays are kept per plan object and reused from frame to frame
+    (made under a lock, so threads that start on a new plan at once share
+    one), so one scorer may score different plans concurrently, and tasks of
+    one plan with disjoint rows, but not the same rows twice at once.
     """
 
     def __init__(self, model):
@@ -117,8 +119,9 @@ class ScaleScorer:
             self._hist_lut = np.ascontiguousarray(hist_w[:, bins], dtype=np.float32)
         self._hog_channels = model.layout.hog_channels
         self._workspace = {}
+        self._workspace_lock = threading.Lock()
 
-    def _buffer(self, plan, kind, shape, dtype):
+    def _buffer(self, plan, kind, shape, dtype, zeroed=False):
         """A scale's work array, reused from frame to frame.
 
         Fresh multi-megabyte arrays every frame would cost page faults;
@@ -126,12 +129,20 @@ class ScaleScorer:
         plan object has its own arrays, so scales scored concurrently never
         share one (tasks of one scale write disjoint rows of them); the plan
         is kept with them so that a recycled ``id`` of a discarded plan is
-        never mistaken for a live one.
+        never mistaken for a live one.  ``zeroed``: a new array starts as
+        zeros.
         """
         key = (kind, id(plan))
         entry = self._workspace.get(key)
         if entry is None or entry[0] is not plan:
-            entry = self._workspace[key] = (plan, np.empty(shape, dtype))
+            # Threads sharing a frame run tasks of one plan at once: two of
+            # them making its first array would each fill their own, and the
+            # windows would be scored from one holding only its rows.
+            with self._workspace_lock:
+                entry = self._workspace.get(key)
+                if entry is None or entry[0] is not plan:
+                    entry = self._workspace[key] = (
+                        plan, (np.zeros if zeroed else np.empty)(shape, dtype))
         return entry[1]
 
     def _start_frame(self):
@@ -159,11 +170,17 @@ class ScaleScorer:
         return resize_linear(region, plan.scaled_size, out=out, rows=rows)
 
     def _cells_buffer(self, plan):
-        """The phase-layout cell array of a scale."""
+        """The phase-layout cell array of a scale.
+
+        Made as zeros: the positions no cell maps to stay zero from frame to
+        frame (the cell kernels never write them; the scorer rewrites its
+        wrapped phases before reading them), so the cells are computed with
+        ``keep_unmapped``.
+        """
         shape = phase_layout_shape(*self._cell_grid(plan), self._hog_channels,
                                    self.options.orientations, plan.step_cells,
                                    self._phase_pad(plan))
-        return self._buffer(plan, "cells", shape, np.float32)
+        return self._buffer(plan, "cells", shape, np.float32, zeroed=True)
 
     def _cell_grid(self, plan):
         """``(rows, columns)`` of HOG cells of a scale's resized region."""
@@ -327,7 +344,7 @@ class ScaleScorer:
             cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
                             options.orientations, out=self._cells_buffer(plan),
                             phase_step=plan.step_cells, phase_pad=self._phase_pad(plan),
-                            rows=(top // ppc, bottom // ppc))
+                            rows=(top // ppc, bottom // ppc), keep_unmapped=True)
             t2 = time.perf_counter()
             timings["cells"] += t2 - t1
             t1 = t2

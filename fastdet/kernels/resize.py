@@ -512,7 +512,10 @@ def _resize(src, first, second, w_first, w_second, base, usable, masks, weights,
             picks, y_first, y_second, w_y_first, w_y_second, out):
     """The resize with this CPU's best horizontal path, the only one compiled."""
     rows = empty((2, out.shape[1]), dtype=np.int16)
-    held = np.array([-1, -1], dtype=np.int64)
+    # Not np.array([...]): Numba compiles that (and a list) on its own.
+    held = empty(2, dtype=np.int64)
+    held[0] = -1
+    held[1] = -1
     for dy in range(out.shape[0]):
         upper, lower = y_first[dy], y_second[dy]
         slot_upper, new_upper, slot_lower, new_lower = _row_slots(held, upper, lower)
@@ -530,7 +533,10 @@ def _resize_path(path, src, first, second, w_first, w_second, base, usable, mask
                  block_base, picks, y_first, y_second, w_y_first, w_y_second, out):
     """:func:`_resize` with any path the CPU has (tests compare every path)."""
     rows = empty((2, out.shape[1]), dtype=np.int16)
-    held = np.array([-1, -1], dtype=np.int64)
+    # Not np.array([...]): Numba compiles that (and a list) on its own.
+    held = empty(2, dtype=np.int64)
+    held[0] = -1
+    held[1] = -1
     for dy in range(out.shape[0]):
         upper, lower = y_first[dy], y_second[dy]
         slot_upper, new_upper, slot_lower, new_lower = _row_slots(held, upper, lower)

@@ -29,12 +29,13 @@ import numpy as np
 
 #: CPU seconds each family took to compile (empty cache, a process of its
 #: own, Numba's own helpers included), measured on an AMD EPYC (Zen 3, AVX2,
-#: 2026-11-27, after the label family's small helpers were inlined; the
-#: AVX-512 development machine took about 0.6 of these);
-#: :func:`split_families` balances two processes with these weights.
-COMPILE_WEIGHTS = {"label": 6.7, "track": 5.7, "split": 5.1, "score": 4.0, "hog_api": 3.8,
-                   "colour": 2.8, "heat": 2.8, "resize": 2.8, "hog": 2.6, "refine": 2.3,
-                   "convert": 1.5}
+#: 2026-11-27, mean of two runs, after the kernels stopped calling np.empty,
+#: np.zeros, np.full, np.ones, np.array and array views, each of which Numba
+#: compiled on its own); :func:`split_families` balances two processes with
+#: these weights.
+COMPILE_WEIGHTS = {"label": 5.2, "split": 4.1, "track": 3.9, "hog_api": 3.1, "score": 2.8,
+                   "resize": 2.3, "colour": 2.2, "hog": 2.0, "heat": 1.5, "refine": 1.5,
+                   "convert": 0.8}
 
 
 def _frame_band(height, width):

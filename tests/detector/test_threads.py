@@ -68,3 +68,23 @@ def test_concurrent_calls_match_serial_calls(frames, pool_threads):
         np.testing.assert_array_equal(hits.scores, want_hits.scores)
     # Each call publishes its own complete timings.
     assert shared.timings["cells"] > 0
+
+
+
+def test_threads_sharing_a_new_frame_size_match_one_thread():
+    """The first frame of a size, whose work arrays the threads sharing it make as they
+    start on its scales: two threads once each made their own array of a scale, and its
+    windows were scored from the one that held only its own rows (found when the
+    arrays started as zeros; stale memory of an earlier detector had hidden it)."""
+    rng = np.random.default_rng(1)
+    try:
+        for _ in range(24):
+            height, width = int(rng.integers(64, 400)), int(rng.integers(64, 720))
+            frame = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
+            frame[: height // 2] = rng.integers(0, 256)
+            serial = Detector(threads=1).hits(frame)
+            shared = Detector(threads=2).hits(frame)
+            np.testing.assert_array_equal(shared.boxes, serial.boxes)
+            np.testing.assert_array_equal(shared.scores, serial.scores)
+    finally:
+        Detector(threads=1)  # restore the thread count for later tests

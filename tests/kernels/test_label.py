@@ -373,6 +373,20 @@ def test_constant_runs_compare_bits():
     assert [r.tolist() for r in constant_runs(np.zeros((0, 3), np.uint32))] == [[0], [0, 3]]
 
 
+@pytest.mark.parametrize("dtype, bits", [(np.float32, np.uint32), (np.float64, np.uint64)])
+def test_constant_runs_of_floats_go_by_their_bits(dtype, bits):
+    # heat_blobs passes the float map itself: the same runs as its bit view.
+    heat = np.array([[0.0, -0.0, np.nan, np.nan, 1.0],
+                     [0.0, -0.0, np.nan, np.nan, 1.0],
+                     [-0.0, -0.0, np.nan, -np.nan, 1.0]], dtype=dtype)
+    rows, cols = constant_runs(heat)
+    expected_rows, expected_cols = reference_runs(heat.view(bits))
+    assert_identical(rows, expected_rows)
+    assert_identical(cols, expected_cols)
+    assert rows.tolist() == [0, 2, 3]
+    assert cols.tolist() == [0, 1, 2, 3, 4, 5]
+
+
 @pytest.mark.parametrize("threshold", [3.0, 1.1, -0.5, 2.0 ** -30])
 def test_split_levels_match_numpy(threshold):
     # heat_components' (threshold + (peak - threshold) * fractions) in NumPy 2
