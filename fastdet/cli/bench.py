@@ -82,7 +82,7 @@ def cmd_bench(args):
     import numba
 
     from ..bench.floor import floor_estimate, format_floor
-    from ..bench.frame_level import format_frame_level, frame_level_study
+    from ..bench.frame_level import format_frame_level, frame_level_study, looped
     from ..bench.hog_compare import format_hog, hog_vs_skimage
     from ..bench.scaling import SIZES, format_scaling, scaling_study
     from ..bench.scaling_plot import plot_scaling
@@ -143,9 +143,10 @@ def cmd_bench(args):
     if max(threads) > 1:
         pipeline_rounds = args.rounds or 3
         points = frame_level_study(frames, threads, pipeline_rounds, model, config, log=log)
+        passes = len(looped(frames))
         print(f"\n## The video pipeline: threads sharing each frame or scoring frames at once "
-              f"({len(frames)} frames in order, default [track]; median of {pipeline_rounds} "
-              "round-robin passes)\n")
+              f"(the {len(frames)} frames forward and back, {passes} a pass; default [track]; "
+              f"median of {pipeline_rounds} round-robin passes)\n")
         print(format_frame_level(points))
 
     print("\n## fastdet.hog vs skimage.feature.hog\n")

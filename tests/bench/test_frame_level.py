@@ -1,0 +1,37 @@
+"""``fastdet bench``'s video-pipeline table: steady-state passes, one row per way of threading."""
+
+from __future__ import annotations
+
+import cv2
+import pytest
+
+from fastdet.bench.frame_level import MIN_PASS_FRAMES, format_frame_level, frame_level_study, looped
+
+
+def test_looped_plays_the_frames_forward_and_back_to_the_length():
+    frames = ["a", "b", "c"]
+    assert looped(frames, 7) == ["a", "b", "c", "c", "b", "a", "a", "b", "c"]
+    assert looped(frames, 2) == frames
+    assert looped([], 5) == []
+    assert len(looped(list(range(38)))) == 304 >= MIN_PASS_FRAMES
+
+
+@pytest.fixture(scope="module")
+def small_frames(data_dir):
+    frames = []
+    for name in ("test1.jpg", "test4.jpg"):
+        image = cv2.imread(str(data_dir / "test_images" / name))
+        assert image is not None, f"missing {name} in {data_dir / 'test_images'}"
+        frames.append(cv2.resize(image, (640, 360)))
+    return frames
+
+
+def test_frame_level_study_times_each_way_over_looped_passes(small_frames):
+    points = frame_level_study(small_frames, threads=(1, 2), rounds=1, log=lambda *a: None,
+                               min_frames=6)
+    assert [(p.threads, p.frames_at_once) for p in points] == [(1, 1), (2, 1), (2, 2)]
+    assert all(p.ms_per_frame > 0 and p.cpu_ms_per_frame > 0 for p in points)
+    table = format_frame_level(points).splitlines()
+    assert table[2].startswith("| 1 thread |") and table[2].endswith("| 1.00x |")
+    assert table[3].startswith("| 2 threads sharing each frame |")
+    assert table[4].startswith("| 2 threads, 2 frames at once |")
