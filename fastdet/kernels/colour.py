@@ -71,6 +71,7 @@ from numba.extending import intrinsic
 
 from ._llvm import HAVE_AVX512BW, box_sums, load_vector, store_vector
 from .alloc import empty
+from .inner import CALLED_FROM_KERNELS_ONLY
 
 _C = uint64(3)
 _BYTE = uint64(255)
@@ -161,14 +162,14 @@ _box4_block = _box_block(4)
 
 
 # -- tile sums ---------------------------------------------------------------
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _pixel_weight(flat, lut, i):
     """lut[0, v0] + lut[1, v1] + lut[2, v2] of the pixel at flat[i:i + 3]."""
     return ((lut[uint64(flat[i])] + lut[_LUT1 + uint64(flat[i + uint64(1)])])
             + lut[_LUT2 + uint64(flat[i + uint64(2)])])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _quad_weight(flat, lut, i):
     """Sum of the weights of the 4 pixels at flat[i:i + 12]."""
     if not _LITTLE_ENDIAN:
@@ -193,7 +194,7 @@ def _quad_weight(flat, lut, i):
     return (p0 + p1) + (p2 + p3)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _tile_row_quads(flat, row_bytes, lut, tile, y0, out):
     """out[tx] = weight sum of tile tx of the tile row starting at image row y0;
     the tile side is a multiple of 4."""
@@ -212,7 +213,7 @@ def _tile_row_quads(flat, row_bytes, lut, tile, y0, out):
         out[tx] = total
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _tile_row_pixels(flat, row_bytes, lut, tile, y0, out):
     """Like :func:`_tile_row_quads` for any tile side, one pixel at a time."""
     t = uint64(tile)
@@ -318,7 +319,7 @@ def _bin_column_sums(typingctx, flat, start, row_bytes, rows, blocks, table, sum
     return sig, codegen
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _bin_table(lut, table):
     """Fill table[32c + b] with lut[c, 8b] and return True if each channel of
     the flat lut is constant on aligned runs of 8 values; else return False."""
@@ -332,7 +333,7 @@ def _bin_table(lut, table):
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _tile_row_bins(flat, row_bytes, lut, table, tile, y0, columns, out):
     """Like :func:`_tile_row_quads` with a bin table: sums of each image
     column over the tile row into ``columns`` (16-pixel vector blocks, then
@@ -364,7 +365,7 @@ def _tile_row_bins(flat, row_bytes, lut, table, tile, y0, columns, out):
 
 
 # -- box mean ----------------------------------------------------------------
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _box_pixels(flat, row_bytes, factor, scale, box_flat, box_w, oy, ox0):
     """Output pixels [ox0, box_w) of output row oy, one at a time."""
     f = uint64(factor)
@@ -386,7 +387,7 @@ def _box_pixels(flat, row_bytes, factor, scale, box_flat, box_w, oy, ox0):
         box_flat[o + uint64(2)] = np.float32(t2) * scale
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _box_rows(flat, row_bytes, factor, box_flat, box_w, oy0, oy1):
     """Output rows [oy0, oy1) of the box mean: whole blocks of _BOX_BLOCK
     pixels for factors 1, 2 and 4, the rest one pixel at a time."""

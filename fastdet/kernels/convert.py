@@ -44,6 +44,7 @@ from numba import njit, types
 from numba.extending import intrinsic
 
 from ._llvm import load_vector, store_vector
+from .inner import CALLED_FROM_KERNELS_ONLY
 
 #: Pixels per vector block.
 _BLOCK = 16
@@ -185,7 +186,7 @@ def _bgr_to_hls(image, out, vector):
             _hls_scalar(row, dest, x, simd or not vector)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", **CALLED_FROM_KERNELS_ONLY)
 def _hls_scalar(row, dest, x, simd):
     """HLS of pixel x of one row (2-D views, shape (W, 3))."""
     inv255 = np.float32(_INV255)

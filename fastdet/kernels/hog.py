@@ -48,6 +48,7 @@ from ._llvm import HAVE_AVX2, HAVE_AVX512F, load_vector, store_vector
 from .alloc import empty
 from .cache import kernel_cache_dir
 from .hog_float64 import float64_cell_histograms
+from .inner import CALLED_FROM_KERNELS_ONLY
 
 # A gradient whose cross product with a bin boundary is below this fraction of
 # its magnitude is re-binned with the exact atan2 rule.  float32 rounding of
@@ -944,7 +945,7 @@ _SCRATCH3 = _reduction_plan(_LANES, 3, 8, 9).size
 _SCRATCH1 = _reduction_plan(_LANES, 1, 8, 9).size
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _scalar_cells(flat, height, row_bytes, channels, y0, ppc_y, ppc_x, cx0, cx1, nbins, bin_lut,
                   acc):
     """Gradient-magnitude sums of cells cx0 .. cx1 - 1 of one cell row, one

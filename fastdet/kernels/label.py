@@ -71,6 +71,7 @@ from numba.core import types
 from numba.extending import intrinsic
 
 from .alloc import empty, zeros
+from .inner import CALLED_FROM_KERNELS_ONLY
 
 __all__ = [
     "component_boxes",
@@ -85,7 +86,7 @@ __all__ = [
 ]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _find_root(parent, label):
     # Path halving keeps trees shallow without a second pass or recursion.
     while parent[label] != label:
@@ -94,7 +95,7 @@ def _find_root(parent, label):
     return label
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _union(parent, label_a, label_b):
     root_a = _find_root(parent, label_a)
     root_b = _find_root(parent, label_b)
@@ -141,7 +142,7 @@ def _parent_size(height, width):
     return height * ((width + 1) // 2) + 1
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _label_into(mask, eight_connected, labels, parent):
     """:func:`label_components_kernel` into given buffers; returns the count.
 
@@ -554,7 +555,7 @@ def constant_runs(bits):
     return row_starts[:n_rows + 1], col_starts
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _car_sized_parts(values, mask, row_units, col_units, levels, min_width, min_height,
                      eight_connected):
     """The car-sized parts of a blob at the lowest level that gives two or more.

@@ -55,6 +55,7 @@ from numba.extending import intrinsic
 
 from ._llvm import HAVE_AVX2, HAVE_AVX512BW, HAVE_SSSE3, box_sums, load_vector, store_vector
 from .alloc import empty
+from .inner import CALLED_FROM_KERNELS_ONLY
 
 #: OpenCV's INTER_RESIZE_COEF_SCALE (11 fractional bits).
 _COEF_SCALE = np.float32(2048)
@@ -293,13 +294,13 @@ def _hblock(typingctx, row, base, picks, weights, dest, block):
     return sig, codegen
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _hvalue(row, first, second, w_first, w_second, dest, e):
     dest[e] = np.int16((np.int32(row[uint64(first[e])]) * w_first[e]
                         + np.int32(row[uint64(second[e])]) * w_second[e]) >> 4)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _hgroups(row, first, second, w_first, w_second, base, usable, masks, weights, dest, g0,
              g1):
     """Groups g0 .. g1 - 1 one at a time: a pshufb group where its sources fit
@@ -312,14 +313,14 @@ def _hgroups(row, first, second, w_first, w_second, base, usable, masks, weights
                 _hvalue(row, first, second, w_first, w_second, dest, e)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _hrest(row, first, second, w_first, w_second, dest, e0):
     """The values past the last whole group, by the scalar loop."""
     for e in range(e0, uint64(dest.size)):
         _hvalue(row, first, second, w_first, w_second, dest, e)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _horizontal_avx2(row, first, second, w_first, w_second, base, usable, masks, weights,
                      block_base, picks, dest):
     groups = uint64(usable.size)
@@ -409,7 +410,7 @@ def _vblock(typingctx, upper, lower, w_upper, w_lower, dest, start):
     return sig, codegen
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _vertical(upper, lower, w_upper, w_lower, dest):
     n = uint64(dest.size)
     blocks = n // uint64(_VBLOCK)
@@ -422,7 +423,7 @@ def _vertical(upper, lower, w_upper, w_lower, dest):
 
 
 # -- driver --------------------------------------------------------------------
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _find(held, source):
     if held[0] == source:
         return 0
@@ -465,7 +466,7 @@ def _horizontal(path, row, first, second, w_first, w_second, base, usable, masks
                        block_base, picks, dest)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _horizontal_native(row, first, second, w_first, w_second, base, usable, masks, weights,
                        block_base, picks, dest):
     """The horizontal pass of :data:`NATIVE_PATH`: the other paths are pruned
@@ -484,7 +485,7 @@ def _horizontal_native(row, first, second, w_first, w_second, base, usable, mask
                            weights, block_base, picks, dest)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _row_slots(held, upper, lower):
     """Where output row taps ``upper`` and ``lower`` are kept among the two
     horizontal rows, and whether each must be computed first (``held`` is

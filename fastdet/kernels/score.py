@@ -40,13 +40,14 @@ from ._llvm import counted_loop, load_vector, splat, store_vector
 from .alloc import empty, zeros
 from .blocks import EPS, NORM_CODES
 from .hog import to_phase_layout
+from .inner import CALLED_FROM_KERNELS_ONLY
 
 # Reassociation lets LLVM vectorise the dot products; sums then differ from
 # strict left-to-right order only at float32 rounding level.
 _FASTMATH = {"reassoc", "nsz", "contract"}
 
 
-@njit(cache=True, fastmath=_FASTMATH)
+@njit(cache=True, fastmath=_FASTMATH, **CALLED_FROM_KERNELS_ONLY)
 def _dot_rows(image_flat, row_len, y0, x0, weights_flat, rows, length):
     """Sum over r, k of image[y0 + r, x0 + k] * weights[r, k] on flat arrays.
 
@@ -333,7 +334,7 @@ _normalise_l2 = _normalise_blocks(2)
 _normalise_l2_hys = _normalise_blocks(3)
 
 
-@njit(cache=True, fastmath=_FASTMATH)
+@njit(cache=True, fastmath=_FASTMATH, **CALLED_FROM_KERNELS_ONLY)
 def _phase_energy(cells_flat, base, nbins, length, norm_code, energy, e_base):
     """energy[e_base + i] = sum over bins of |v| (L1 norms) or v**2 (L2 norms)."""
     for i in range(uint64(length)):

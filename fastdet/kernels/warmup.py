@@ -31,10 +31,11 @@ import numpy as np
 #: own, Numba's own helpers included), measured on an AMD EPYC (Zen 3, AVX2,
 #: 2026-11-27, mean of two runs, after the kernels stopped calling np.empty,
 #: np.zeros, np.full, np.ones, np.array and array views, each of which Numba
-#: compiled on its own); :func:`split_families` balances two processes with
-#: these weights.
-COMPILE_WEIGHTS = {"label": 5.2, "split": 4.1, "track": 3.9, "hog_api": 3.1, "score": 2.8,
-                   "resize": 2.3, "colour": 2.2, "hog": 2.0, "heat": 1.5, "refine": 1.5,
+#: compiled on its own, and the helpers only kernels call lost their Python
+#: wrappers); :func:`split_families` balances two processes with these
+#: weights.
+COMPILE_WEIGHTS = {"label": 5.2, "track": 4.0, "split": 3.9, "hog_api": 3.1, "score": 2.9,
+                   "hog": 2.0, "colour": 2.0, "resize": 1.7, "heat": 1.6, "refine": 1.6,
                    "convert": 0.8}
 
 
