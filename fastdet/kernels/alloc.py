@@ -1,18 +1,18 @@
-"""``empty`` and ``zeros`` for the kernels: NumPy's, allocated inline when compiled.
+"""``empty``, ``zeros`` and ``full`` for the kernels: NumPy's, allocated inline when compiled.
 
-Numba compiles ``np.empty`` and ``np.zeros`` as implementations of their
+Numba compiles ``np.empty``, ``np.zeros`` and ``np.full`` as implementations of their
 own, once for every shape type, dtype and set of the calling kernel's jit
 flags: on a cold start that was 39 compiles and 2.2 s (with their zero
 fill) of the 20 s a detection's kernels took to compile (AMD EPYC, Zen 3),
 paid again by each of the two compiling processes.  Here the allocation is lowered
 straight into the calling kernel with Numba's own array allocator (the code
-``np.empty`` itself ends in), and ``zeros`` adds a ``memset``: the same
-arrays, without the separate compiles.  Called from Python, both are
-NumPy's.
+``np.empty`` itself ends in); ``zeros`` adds a ``memset`` and ``full`` a fill
+loop: the same arrays, without the separate compiles.  Called from Python,
+they are NumPy's.
 
 The lowering uses two internals of ``numba.np.arrayobj``
 (``_empty_nd_impl``, ``_parse_shape``).  Where they are missing (another
-Numba), ``empty`` and ``zeros`` compile as ``np.empty`` and ``np.zeros``.
+Numba), they compile as ``np.empty``, ``np.zeros`` and ``np.full``.
 """
 
 from __future__ import annotations
@@ -36,6 +36,11 @@ def empty(shape, dtype=float):
 def zeros(shape, dtype=float):
     """``np.zeros(shape, dtype)``, C order."""
     return np.zeros(shape, dtype)
+
+
+def full(shape, fill_value, dtype):
+    """``np.full(shape, fill_value, dtype)``, C order (the dtype is required)."""
+    return np.full(shape, fill_value, dtype)
 
 
 def _array_type(shape, dtype):
@@ -71,6 +76,21 @@ if _empty_nd_impl is not None:
 
         lower_builtin(_function, types.Any)(_lowering(_zero))
         lower_builtin(_function, types.Any, types.Any)(_lowering(_zero))
+
+    @type_callable(full)
+    def _type_full(context):
+        def typer(shape, fill_value, dtype):
+            return _array_type(shape, dtype)
+        return typer
+
+    @lower_builtin(full, types.Any, types.Any, types.Any)
+    def _lower_full(context, builder, sig, args):
+        shapes = _parse_shape(context, builder, sig.args[0], args[0])
+        array = _empty_nd_impl(context, builder, sig.return_type, shapes)
+        value = context.cast(builder, args[1], sig.args[1], sig.return_type.dtype)
+        with cgutils.for_range(builder, array.nitems) as loop:
+            builder.store(value, builder.gep(array.data, [loop.index]))
+        return array._getvalue()
 else:  # pragma: no cover
     @overload(empty)
     def _empty_overload(shape, dtype=float):
@@ -82,4 +102,10 @@ else:  # pragma: no cover
     def _zeros_overload(shape, dtype=float):
         def impl(shape, dtype=float):
             return np.zeros(shape, dtype)
+        return impl
+
+    @overload(full)
+    def _full_overload(shape, fill_value, dtype):
+        def impl(shape, fill_value, dtype):
+            return np.full(shape, fill_value, dtype)
         return impl

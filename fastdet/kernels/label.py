@@ -70,7 +70,7 @@ from llvmlite import ir
 from numba.core import types
 from numba.extending import intrinsic
 
-from .alloc import empty, zeros
+from .alloc import empty, full, zeros
 from .inner import CALLED_FROM_KERNELS_ONLY
 
 __all__ = [
@@ -359,10 +359,7 @@ def component_max(labels, count, values):
         labels without any pixel get ``-inf``.
     """
     height, width = labels.shape
-    # Not np.full: Numba compiles that (and the np.empty inside it) on its own.
-    maxima = empty(count, dtype=np.float32)
-    for k in range(count):
-        maxima[k] = -np.inf
+    maxima = full(count, -np.inf, np.float32)
     for y in range(height):
         for x in range(width):
             label = labels[y, x]

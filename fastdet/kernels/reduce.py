@@ -5,6 +5,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .alloc import full
+
 __all__ = ["smallest_positive"]
 
 #: Independent running minima: LLVM vectorises a fixed block of lanes, not one
@@ -29,7 +31,7 @@ def smallest_positive(values):
     numpy.float32
     """
     inf = np.float32(np.inf)
-    lanes = np.full(_LANES, inf, np.float32)
+    lanes = full(_LANES, inf, np.float32)
     height, width = values.shape
     blocked = width // _LANES * _LANES
     smallest = inf

@@ -54,7 +54,7 @@ from numba import njit, types, uint64
 from numba.extending import intrinsic
 
 from ._llvm import HAVE_AVX2, HAVE_AVX512BW, HAVE_SSSE3, box_sums, load_vector, store_vector
-from .alloc import empty
+from .alloc import empty, full
 from .inner import CALLED_FROM_KERNELS_ONLY
 
 #: OpenCV's INTER_RESIZE_COEF_SCALE (11 fractional bits).
@@ -513,10 +513,7 @@ def _resize(src, first, second, w_first, w_second, base, usable, masks, weights,
             picks, y_first, y_second, w_y_first, w_y_second, out):
     """The resize with this CPU's best horizontal path, the only one compiled."""
     rows = empty((2, out.shape[1]), dtype=np.int16)
-    # Not np.array([...]): Numba compiles that (and a list) on its own.
-    held = empty(2, dtype=np.int64)
-    held[0] = -1
-    held[1] = -1
+    held = full(2, -1, np.int64)
     for dy in range(out.shape[0]):
         upper, lower = y_first[dy], y_second[dy]
         slot_upper, new_upper, slot_lower, new_lower = _row_slots(held, upper, lower)
@@ -534,10 +531,7 @@ def _resize_path(path, src, first, second, w_first, w_second, base, usable, mask
                  block_base, picks, y_first, y_second, w_y_first, w_y_second, out):
     """:func:`_resize` with any path the CPU has (tests compare every path)."""
     rows = empty((2, out.shape[1]), dtype=np.int16)
-    # Not np.array([...]): Numba compiles that (and a list) on its own.
-    held = empty(2, dtype=np.int64)
-    held[0] = -1
-    held[1] = -1
+    held = full(2, -1, np.int64)
     for dy in range(out.shape[0]):
         upper, lower = y_first[dy], y_second[dy]
         slot_upper, new_upper, slot_lower, new_lower = _row_slots(held, upper, lower)

@@ -37,7 +37,7 @@ from numba import njit, prange, types, uint64
 from numba.extending import intrinsic
 
 from ._llvm import counted_loop, load_vector, splat, store_vector
-from .alloc import empty, zeros
+from .alloc import empty, full, zeros
 from .blocks import EPS, NORM_CODES
 from .hog import to_phase_layout
 from .inner import CALLED_FROM_KERNELS_ONLY
@@ -410,10 +410,7 @@ def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weight
     per_channel = uint64(cpb_y * cpb_x * nbins)
     # Whole vectors past the last feature: the window dots read that far.
     normalised = zeros(uint64(n_features) * stride + lanes, dtype=np.float32)
-    # Not np.ones: Numba compiles that (and the np.empty inside it) on its own.
-    second = empty(uint64(channels) * stride + lanes, dtype=np.float32)
-    for i in range(second.size):
-        second[i] = np.float32(1.0)
+    second = full(uint64(channels) * stride + lanes, 1.0, np.float32)
     eps32 = np.float32(eps)
     eps_sq = np.float32(eps * eps)
     bias = eps32 if norm_code <= 1 else eps_sq

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from numba.core import event
 
-from fastdet.kernels.alloc import empty, zeros
+from fastdet.kernels.alloc import empty, full, zeros
 
 
 @pytest.mark.parametrize("shape, dtype", [(5, np.float32), ((3, 4), np.int32), (0, np.uint8),
@@ -76,12 +76,13 @@ def test_compiling_them_compiles_none_of_numpys_implementations():
 
     @numba.njit(cache=False)
     def fresh(n):
-        return empty((n, 2), np.int16), zeros(n, np.uint16)
+        return empty((n, 2), np.int16), zeros(n, np.uint16), full(n, 1.5, np.float32)
 
     with event.install_listener("numba:compile", Listener()):
         fresh(3)
     assert any("fresh" in name for name in compiled)
-    numpys = [name for name in compiled if "ol_np_" in name or "zero_fill" in name]
+    numpys = [name for name in compiled
+              if "ol_np_" in name or "zero_fill" in name or "np_full" in name]
     assert numpys == [], numpys
 
 
@@ -92,3 +93,20 @@ def test_a_negative_dimension_is_numpys_error():
 
     with pytest.raises(ValueError, match="negative dimensions"):
         negative(-1)
+
+
+@numba.njit(cache=False)
+def _filled(n):
+    # The fill values the kernels use: -inf, a Python float, a negative int.
+    return (full(n, -np.inf, np.float32), full((n, 2), 1.0, np.float32),
+            full(np.uint64(n), -1, np.int64))
+
+
+def test_full_gives_numpys_arrays_python_and_compiled():
+    for n in (0, 1, 5):
+        for got, want in zip(_filled(n), (np.full(n, -np.inf, np.float32),
+                                          np.full((n, 2), 1.0, np.float32),
+                                          np.full(n, -1, np.int64))):
+            assert got.dtype == want.dtype and got.flags.c_contiguous
+            np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(full((2, 3), 7, np.uint8), np.full((2, 3), 7, np.uint8))
