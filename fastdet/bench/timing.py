@@ -20,7 +20,7 @@ from ..video.source import VideoSource
 
 #: Stage names as printed, in pipeline order; "python overhead" is the rest.
 STAGE_LABELS = {"resize_convert": "resize+convert", "cells": "cells",
-                "blocks_score": "blocks+score", "colour_score": "colour score",
+                "blocks_score": "blocks+scores", "colour_maps": "colour maps",
                 "heat": "heat", "label": "labelling"}
 
 

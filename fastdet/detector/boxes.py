@@ -153,7 +153,9 @@ class BoxFinder:
         else:
             boxes = self.reshape_boxes(boxes, frame_size)
         keep = self.box_filter(boxes, frame_size)
-        return Detections(boxes[keep], peaks[keep])
+        # _clipped gives int32 boxes of at least a pixel; blob boxes are int32 and
+        # valid too, peaks float32.
+        return Detections.of_valid(boxes[keep], peaks[keep])
 
     def reshape_boxes(self, boxes, frame_size):
         """Apply the ``[boxes]`` shape correction about each box centre, clipped to the frame."""

@@ -36,6 +36,20 @@ class Detections:
         self.track_id = track_id
 
     @classmethod
+    def of_valid(cls, xyxy, score, track_id=None):
+        """Detections from arrays known to be valid: int32 ``(N, 4)`` boxes with
+        ``x2 > x1`` and ``y2 > y1``, float32 ``(N,)`` scores and, optionally,
+        int64 ``(N,)`` ids -- the detector's and tracker's own, made every
+        frame, for which the checks of the constructor would be repeated work
+        with the GIL held.  Nothing is copied or checked.
+        """
+        detections = cls.__new__(cls)
+        detections.xyxy = xyxy
+        detections.score = score
+        detections.track_id = track_id
+        return detections
+
+    @classmethod
     def empty(cls):
         """No boxes."""
         return cls(np.zeros((0, 4), np.int32), np.zeros(0, np.float32))

@@ -21,19 +21,18 @@ from ..kernels.colour import colour_maps
 from ..kernels.hog import cell_histograms, phase_layout_shape
 from ..kernels.resize import resize_linear
 from ..kernels.score import (
-    add_hog_scores_from_phase_cells,
-    add_spatial_scores,
-    add_tile_window_sums,
+    score_window_rows,
     phase_scoring_pad,
 )
 from .features import WINDOW, color_planes, histogram_bin_lut, hog_input
 from .plan import search_band
 
-#: Work arrays kept before they are all dropped (see ScaleScorer._start_frame).
-_MAX_BUFFERS = 64
+#: Plans with work arrays (and frame bands) kept before all are dropped, about three
+#: frame sizes of the default search (see ScaleScorer._start_frame).
+_MAX_BUFFERS = 16
 
 #: Names of the timed stages, in pipeline order.
-STAGES = ("resize_convert", "cells", "blocks_score", "colour_score", "heat", "label", "total")
+STAGES = ("resize_convert", "cells", "blocks_score", "colour_maps", "heat", "label", "total")
 
 
 @dataclass
@@ -111,39 +110,36 @@ class ScaleScorer:
         options = model.options
         self.options = options
         hog_w, spatial_w, hist_w = model.split_weights()
-        self._hog_weights = np.ascontiguousarray(hog_w)
-        self._spatial_weights = np.ascontiguousarray(spatial_w)
+        self.hog_weights = np.ascontiguousarray(hog_w)
+        self.spatial_weights = np.ascontiguousarray(spatial_w)
         self._hist_lut = None
         if options.hist_bins:
             bins = histogram_bin_lut(options.hist_bins)
             self._hist_lut = np.ascontiguousarray(hist_w[:, bins], dtype=np.float32)
-        self._hog_channels = model.layout.hog_channels
+        self.hog_channels = model.layout.hog_channels
         self._workspace = {}
         self._workspace_lock = threading.Lock()
 
-    def _buffer(self, plan, kind, shape, dtype, zeroed=False):
-        """A scale's work array, reused from frame to frame.
+    def _work(self, plan):
+        """The :class:`_ScaleWork` of a scale plan: its work arrays, reused from frame to frame.
 
         Fresh multi-megabyte arrays every frame would cost page faults;
-        callers get the array back filled, so the reuse is invisible.  Each
-        plan object has its own arrays, so scales scored concurrently never
-        share one (tasks of one scale write disjoint rows of them); the plan
-        is kept with them so that a recycled ``id`` of a discarded plan is
-        never mistaken for a live one.  ``zeroed``: a new array starts as
-        zeros.
+        callers get the arrays back filled, so the reuse is invisible.  Each
+        plan object has its own, so scales scored concurrently never share
+        one (tasks of one scale write disjoint rows of them); the plan is
+        kept with them so that a recycled ``id`` of a discarded plan is
+        never mistaken for a live one.
         """
-        key = (kind, id(plan))
-        entry = self._workspace.get(key)
-        if entry is None or entry[0] is not plan:
+        work = self._workspace.get(id(plan))
+        if work is None or work.plan is not plan:
             # Threads sharing a frame run tasks of one plan at once: two of
-            # them making its first array would each fill their own, and the
-            # windows would be scored from one holding only its rows.
+            # them making its first arrays would each fill their own, and the
+            # windows would be scored from arrays holding only one's rows.
             with self._workspace_lock:
-                entry = self._workspace.get(key)
-                if entry is None or entry[0] is not plan:
-                    entry = self._workspace[key] = (
-                        plan, (np.zeros if zeroed else np.empty)(shape, dtype))
-        return entry[1]
+                work = self._workspace.get(id(plan))
+                if work is None or work.plan is not plan:
+                    work = self._workspace[id(plan)] = _ScaleWork(plan, self)
+        return work
 
     def _start_frame(self):
         """Drop the work arrays once too many frame sizes have left theirs behind.
@@ -166,30 +162,8 @@ class ScaleScorer:
         if region.shape[:2] == (height, width) and region.flags.c_contiguous:
             return region
         # Bit-identical to cv2.resize(..., INTER_LINEAR), in about half its time.
-        out = self._buffer(plan, ("resized", channels), (height, width, channels), np.uint8)
-        return resize_linear(region, plan.scaled_size, out=out, rows=rows)
-
-    def _cells_buffer(self, plan):
-        """The phase-layout cell array of a scale.
-
-        Made as zeros: the positions no cell maps to stay zero from frame to
-        frame (the cell kernels never write them; the scorer rewrites its
-        wrapped phases before reading them), so the cells are computed with
-        ``keep_unmapped``.
-        """
-        shape = phase_layout_shape(*self._cell_grid(plan), self._hog_channels,
-                                   self.options.orientations, plan.step_cells,
-                                   self._phase_pad(plan))
-        return self._buffer(plan, "cells", shape, np.float32, zeroed=True)
-
-    def _cell_grid(self, plan):
-        """``(rows, columns)`` of HOG cells of a scale's resized region."""
-        ppc = self.options.pixels_per_cell
-        return plan.scaled_size[1] // ppc, plan.scaled_size[0] // ppc
-
-    def _phase_pad(self, plan):
-        cpb = self.options.cells_per_block
-        return phase_scoring_pad(self._cell_grid(plan)[1], plan.step_cells, (cpb, cpb))
+        return resize_linear(region, plan.scaled_size, out=self._work(plan).resized(channels),
+                             rows=rows)
 
     # -- the colour-converted band ----------------------------------------------
     def prepare(self, frame, plans):
@@ -325,7 +299,7 @@ class ScaleScorer:
         rows may run at the same time.
         """
         options = self.options
-        ppc = options.pixels_per_cell
+        work = self._work(plan)
         t0 = time.perf_counter()
         ox, oy = prepared.origin
         x0, y0, x1, y1 = plan.roi
@@ -341,66 +315,90 @@ class ScaleScorer:
             # Cells in the phase layout of the window step, so each block row
             # is normalised and scored along whole rows, never writing the
             # block map to memory.
+            ppc = options.pixels_per_cell
             cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
-                            options.orientations, out=self._cells_buffer(plan),
-                            phase_step=plan.step_cells, phase_pad=self._phase_pad(plan),
+                            options.orientations, out=work.cells,
+                            phase_step=plan.step_cells, phase_pad=work.phase_pad,
                             rows=(top // ppc, bottom // ppc), keep_unmapped=True)
             t2 = time.perf_counter()
             timings["cells"] += t2 - t1
             t1 = t2
-        if options.spatial_size or options.hist_bins:
-            tile, factor = self._colour_grid(plan)
-            tiles, box = self._colour_buffers(plan)
+        if work.colour:
+            tile, factor = work.tile, max(work.factor, 1)
             # Tiles and boxes are local to their pixels: the rows' maps are
             # the rows of the scale's maps.
-            colour_maps(converted[top:bottom], self._hist_lut, tile, factor,
-                        out=(tiles[top // tile:bottom // tile], box[top // max(factor, 1):
-                                                                    bottom // max(factor, 1)]))
-            timings["colour_score"] += time.perf_counter() - t1
+            colour_maps(converted[top:bottom], self._hist_lut, work.tile, work.factor,
+                        out=(work.tile_sums[top // tile:bottom // tile],
+                             work.box[top // factor:bottom // factor]))
+            timings["colour_maps"] += time.perf_counter() - t1
 
     def score_windows(self, plan, first, stop, scores, timings):
         """Add the margins of window rows ``first`` .. ``stop - 1`` to ``scores``, from
         the features :meth:`score_rows` computed for the rows they cover."""
-        options = self.options
         if first >= stop:
             return
-        t1 = time.perf_counter()
-        band_scores = scores[first:stop]
-        step_px = plan.step_cells * options.pixels_per_cell
-        if options.use_hog:
-            cpb = options.cells_per_block
-            add_hog_scores_from_phase_cells(self._cells_buffer(plan),
-                                            plan.scaled_size[0] // options.pixels_per_cell,
-                                            (cpb, cpb), options.block_norm, self._hog_weights,
-                                            plan.step_cells, scores, window_rows=(first, stop))
-            t2 = time.perf_counter()
-            timings["blocks_score"] += t2 - t1
-            t1 = t2
-        if options.spatial_size or options.hist_bins:
-            tile, factor = self._colour_grid(plan)
-            tiles, box = self._colour_buffers(plan)
-            top, bottom = first * step_px, (stop - 1) * step_px + WINDOW
-            if options.spatial_size:
-                add_spatial_scores(box[top // factor:bottom // factor], self._spatial_weights,
-                                   step_px // factor, band_scores)
-            if options.hist_bins:
-                add_tile_window_sums(tiles[top // tile:bottom // tile], WINDOW // tile,
-                                     step_px // tile, band_scores)
-            timings["colour_score"] += time.perf_counter() - t1
+        work = self._work(plan)
+        t0 = time.perf_counter()
+        # One kernel call for the three parts (see score_window_rows).
+        score_window_rows(scores, (first, stop), WINDOW, work.step_px, work.hog_args,
+                          work.spatial_args, work.tile_args)
+        timings["blocks_score"] += time.perf_counter() - t0
 
-    def _colour_grid(self, plan):
-        """``(tile, factor)``: the histogram tile side and the spatial box factor of a scale."""
-        options = self.options
-        tile = math.gcd(plan.step_cells * options.pixels_per_cell, WINDOW)
-        return tile, (WINDOW // options.spatial_size if options.spatial_size else 0)
 
-    def _colour_buffers(self, plan):
-        """The scale's histogram tile sums and spatial box means (reused arrays)."""
-        tile, factor = self._colour_grid(plan)
+class _ScaleWork:
+    """A scale plan's work arrays, and the sizes its kernel calls take, made once.
+
+    The Python around the kernels runs with the GIL held, which a thread
+    scoring another frame then waits for: what depends on the plan alone is
+    worked out here, once, rather than on every frame.
+
+    Parameters
+    ----------
+    plan : ScalePlan
+    scorer : ScaleScorer
+        Its options and weights.
+    """
+
+    def __init__(self, plan, scorer):
+        options = scorer.options
+        self.plan = plan
+        self._resized = {}
+        ppc = options.pixels_per_cell
+        self.step_px = plan.step_cells * ppc
         width = plan.scaled_size[0]
-        height = (plan.grid[0] - 1) * plan.step_cells * self.options.pixels_per_cell + WINDOW
-        tiles = self._buffer(plan, "tiles", (height // tile, width // tile) if
-                             self.options.hist_bins else (0, 0), np.float32)
-        box = self._buffer(plan, "box", (height // factor, width // factor, 3) if factor
-                           else (0, 0, 3), np.float32)
-        return tiles, box
+        cells_y, cells_x = plan.scaled_size[1] // ppc, width // ppc
+        cpb = options.cells_per_block
+        self.phase_pad = phase_scoring_pad(cells_x, plan.step_cells, (cpb, cpb))
+        self.cells = self.hog_args = None
+        if options.use_hog:
+            # Zeros: the positions no cell maps to stay zero from frame to
+            # frame (the cell kernels never write them; the scorer rewrites
+            # its wrapped phases before reading them), so the cells are
+            # computed with ``keep_unmapped``.
+            self.cells = np.zeros(phase_layout_shape(cells_y, cells_x, scorer.hog_channels,
+                                                     options.orientations, plan.step_cells,
+                                                     self.phase_pad), np.float32)
+            self.hog_args = (self.cells, cells_x, (cpb, cpb), options.block_norm,
+                             scorer.hog_weights, plan.step_cells)
+        self.colour = bool(options.spatial_size or options.hist_bins)
+        # The histogram tile side and the spatial box factor.
+        self.tile = math.gcd(self.step_px, WINDOW)
+        self.factor = WINDOW // options.spatial_size if options.spatial_size else 0
+        height = (plan.grid[0] - 1) * self.step_px + WINDOW
+        self.tile_sums = np.empty((height // self.tile, width // self.tile) if options.hist_bins
+                                  else (0, 0), np.float32)
+        self.box = np.empty((height // self.factor, width // self.factor, 3) if self.factor
+                            else (0, 0, 3), np.float32)
+        self.spatial_args = (self.box, scorer.spatial_weights) if options.spatial_size else None
+        self.tile_args = (self.tile_sums, self.tile) if options.hist_bins else None
+
+    def resized(self, channels):
+        """The array a region of ``channels`` channels is resized into (made on first use)."""
+        array = self._resized.get(channels)
+        if array is None:
+            width, height = self.plan.scaled_size
+            # setdefault is atomic: threads starting on this plan at once
+            # all get the array stored first.
+            array = self._resized.setdefault(channels,
+                                             np.empty((height, width, channels), np.uint8))
+        return array

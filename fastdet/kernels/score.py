@@ -16,6 +16,10 @@ own kernel, reading maps computed once per scale:
   made of whole tiles, so an integral image over per-tile sums gives it in
   four reads per window.
 
+The detector adds all three parts of a band of window rows in one kernel
+call (:func:`score_window_rows`), which takes the GIL back once instead of
+three times.
+
 Window ``(iy, ix)`` has its top-left pixel at ``(iy * step_px, ix * step_px)``
 of the scale's image (``step_px`` = cells per step x pixels per cell).
 
@@ -65,7 +69,7 @@ def _dot_rows(image_flat, row_len, y0, x0, weights_flat, rows, length):
     return total
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _add_grid(image2d, weights2d, step_rows, step_cols, out):
     rows, length = weights2d.shape
     image_flat = image2d.reshape(image2d.size)
@@ -350,7 +354,7 @@ def _phase_energy(cells_flat, base, nbins, length, norm_code, energy, e_base):
                 energy[e_base + i] += v * v
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _fill_wrapped_phases(cells, per_phase, step, wrap):
     """Write the ``wrap`` phases after the ``step`` real ones (see
     :func:`phase_scoring_pad`): position ``q * K + j`` gets cell column
@@ -373,120 +377,145 @@ def _fill_wrapped_phases(cells, per_phase, step, wrap):
 
 
 @njit(cache=True, nogil=True)
-def _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weights, step, out,
-                          first_row, stop_row):
-    """Scores of window rows ``first_row`` .. ``stop_row - 1`` (a band).
+def _score_window_rows(wrapped, cells, per_phase, cpb_y, cpb_x, norm_code, eps, weights, step,
+                       out, first_row, stop_row, band_scores, spatial, spatial_weights,
+                       spatial_step_rows, spatial_step_cols, tiles, tiles_per_window, tiles_step):
+    """Add the scores of window rows ``first_row`` .. ``stop_row - 1`` (a band) to ``out``.
 
-    The cells' wrapped phases must be filled (:func:`_fill_wrapped_phases`):
-    then cell ``bx + dx`` of the block at position ``p`` sits at ``p + dx * K``
-    for every block, so each block row is normalised in whole-row loops of a
-    multiple of _LANES positions, and each row of windows is scored _LANES
-    windows at a time.
+    HOG part (empty ``weights`` switch it off): the cell rows ``wrapped``
+    (those the band reads) get their wrapped phases filled
+    (:func:`_fill_wrapped_phases`); then cell ``bx + dx`` of the block at
+    position ``p`` sits at ``p + dx * K`` for every block, so each block row
+    is normalised in whole-row loops of a multiple of _LANES positions, and
+    each row of windows is scored _LANES windows at a time.  Spatial part
+    (empty ``spatial_weights`` switch it off) and histogram part
+    (``tiles_per_window`` 0 switches it off): added to ``band_scores``, the
+    band's rows of ``out``, from the band's rows of their maps.
+
+    One kernel for the three parts: each call from Python takes the GIL
+    back when it returns (see :func:`score_window_rows`).  The HOG part's
+    code is here rather than in a function of its own that this one calls:
+    Numba optimises a called kernel's code again inside its caller, and for
+    this one that cost about 1 s of compiling.
     """
-    rows, channels, nbins, length = cells.shape
-    n = weights.shape[0]
-    n_features = weights.shape[2]
-    rows_out, cols_out = out.shape
-    if first_row >= stop_row:
-        return
-    k = uint64(per_phase)
-    lanes = uint64(_LANES)
-    # Block positions, rounded up to whole vectors: padding blocks are scored
-    # into lanes nobody reads.
-    stride = (uint64(step) * k + lanes - uint64(1)) // lanes * lanes
-    chunks = (cols_out + _LANES - 1) // _LANES
-    row_len = chunks * _LANES
-    cells_flat = cells.reshape(cells.size)
-    weights_flat = weights.reshape(weights.size)
-    first_block = first_row * step
-    stop_block = (stop_row - 1) * step + n
-    # Per cell of the band's block rows: the sum a block norm is built from.
-    energy = empty(rows * channels * length, dtype=np.float32)
-    for cy in range(first_block, stop_block + cpb_y - 1):
-        for c in range(channels):
-            base = uint64((cy * channels + c) * nbins * length)
-            _phase_energy(cells_flat, base, nbins, length, norm_code, energy,
-                          uint64((cy * channels + c) * length))
-    per_channel = uint64(cpb_y * cpb_x * nbins)
-    # Whole vectors past the last feature: the window dots read that far.
-    normalised = zeros(uint64(n_features) * stride + lanes, dtype=np.float32)
-    second = full(uint64(channels) * stride + lanes, 1.0, np.float32)
-    eps32 = np.float32(eps)
-    eps_sq = np.float32(eps * eps)
-    bias = eps32 if norm_code <= 1 else eps_sq
-    row_stride = uint64(channels * nbins * length)
-    e_row_stride = uint64(channels * length)
-    scores = zeros((stop_row - first_row) * row_len, dtype=np.float32)
-    for by in range(first_block, stop_block):
-        for c in range(channels):
-            c_base = uint64((by * channels + c) * nbins * length)
-            e_base = uint64((by * channels + c) * length)
-            n_base = uint64(c) * per_channel * stride
-            s_base = uint64(c) * stride
-            for p0 in range(uint64(0), stride, lanes):
-                if norm_code == 3:
-                    _normalise_l2_hys(cells_flat, c_base, row_stride, uint64(length), k,
+    if weights.shape[0] and first_row < stop_row:
+        _fill_wrapped_phases(wrapped, per_phase, step, cpb_x - 1)
+        rows, channels, nbins, length = cells.shape
+        n = weights.shape[0]
+        n_features = weights.shape[2]
+        rows_out, cols_out = out.shape
+        k = uint64(per_phase)
+        lanes = uint64(_LANES)
+        # Block positions, rounded up to whole vectors: padding blocks are scored
+        # into lanes nobody reads.
+        stride = (uint64(step) * k + lanes - uint64(1)) // lanes * lanes
+        chunks = (cols_out + _LANES - 1) // _LANES
+        row_len = chunks * _LANES
+        cells_flat = cells.reshape(cells.size)
+        weights_flat = weights.reshape(weights.size)
+        first_block = first_row * step
+        stop_block = (stop_row - 1) * step + n
+        # Per cell of the band's block rows: the sum a block norm is built from.
+        energy = empty(rows * channels * length, dtype=np.float32)
+        for cy in range(first_block, stop_block + cpb_y - 1):
+            for c in range(channels):
+                base = uint64((cy * channels + c) * nbins * length)
+                _phase_energy(cells_flat, base, nbins, length, norm_code, energy,
+                              uint64((cy * channels + c) * length))
+        per_channel = uint64(cpb_y * cpb_x * nbins)
+        # Whole vectors past the last feature: the window dots read that far.
+        normalised = zeros(uint64(n_features) * stride + lanes, dtype=np.float32)
+        second = full(uint64(channels) * stride + lanes, 1.0, np.float32)
+        eps32 = np.float32(eps)
+        eps_sq = np.float32(eps * eps)
+        bias = eps32 if norm_code <= 1 else eps_sq
+        row_stride = uint64(channels * nbins * length)
+        e_row_stride = uint64(channels * length)
+        scores = zeros((stop_row - first_row) * row_len, dtype=np.float32)
+        for by in range(first_block, stop_block):
+            for c in range(channels):
+                c_base = uint64((by * channels + c) * nbins * length)
+                e_base = uint64((by * channels + c) * length)
+                n_base = uint64(c) * per_channel * stride
+                s_base = uint64(c) * stride
+                for p0 in range(uint64(0), stride, lanes):
+                    if norm_code == 3:
+                        _normalise_l2_hys(cells_flat, c_base, row_stride, uint64(length), k,
+                                          uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy, e_base,
+                                          e_row_stride, p0, bias, eps_sq, normalised, n_base, stride,
+                                          second, s_base)
+                    elif norm_code == 2:
+                        _normalise_l2(cells_flat, c_base, row_stride, uint64(length), k,
                                       uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy, e_base,
                                       e_row_stride, p0, bias, eps_sq, normalised, n_base, stride,
                                       second, s_base)
-                elif norm_code == 2:
-                    _normalise_l2(cells_flat, c_base, row_stride, uint64(length), k,
-                                  uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy, e_base,
-                                  e_row_stride, p0, bias, eps_sq, normalised, n_base, stride,
-                                  second, s_base)
-                elif norm_code == 1:
-                    _normalise_l1_sqrt(cells_flat, c_base, row_stride, uint64(length), k,
-                                       uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy,
-                                       e_base, e_row_stride, p0, bias, eps_sq, normalised, n_base,
-                                       stride, second, s_base)
-                else:
-                    _normalise_l1(cells_flat, c_base, row_stride, uint64(length), k,
-                                  uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy, e_base,
-                                  e_row_stride, p0, bias, eps_sq, normalised, n_base, stride,
-                                  second, s_base)
-        # Window rows iy whose n block rows include ``by``, scored together
-        # in groups of up to _MAX_ROWS.
-        first = max(first_row, (by - n + step) // step)
-        last = min(stop_row - 1, by // step)
-        for s in range(n):
-            offset = (s % step) * per_phase + s // step
-            for group in range(first, last + 1, _MAX_ROWS):
-                count = min(_MAX_ROWS, last + 1 - group)
-                w_base = ((by - group * step) * n + s) * n_features
-                w_step = -step * n * n_features
-                for chunk in range(chunks):
-                    a0 = (group - first_row) * row_len + chunk * _LANES
-                    at = offset + chunk * _LANES
-                    if count == 4:
-                        _window_dots_4(weights_flat, w_base, w_step, normalised, stride, at,
-                                       second, channels, per_channel, scores, a0, row_len)
-                    elif count == 3:
-                        _window_dots_3(weights_flat, w_base, w_step, normalised, stride, at,
-                                       second, channels, per_channel, scores, a0, row_len)
-                    elif count == 2:
-                        _window_dots_2(weights_flat, w_base, w_step, normalised, stride, at,
-                                       second, channels, per_channel, scores, a0, row_len)
+                    elif norm_code == 1:
+                        _normalise_l1_sqrt(cells_flat, c_base, row_stride, uint64(length), k,
+                                           uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy,
+                                           e_base, e_row_stride, p0, bias, eps_sq, normalised, n_base,
+                                           stride, second, s_base)
                     else:
-                        _window_dots_1(weights_flat, w_base, w_step, normalised, stride, at,
-                                       second, channels, per_channel, scores, a0, row_len)
-    # Unsigned indices: with Python's negative-index wraparound LLVM turned
-    # this contiguous copy into vector gathers (slow on AMD).
-    for iy in range(first_row, stop_row):
-        base = uint64((iy - first_row) * row_len)
-        row = out[iy]
-        for ix in range(uint64(cols_out)):
-            row[ix] += scores[base + ix]
+                        _normalise_l1(cells_flat, c_base, row_stride, uint64(length), k,
+                                      uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy, e_base,
+                                      e_row_stride, p0, bias, eps_sq, normalised, n_base, stride,
+                                      second, s_base)
+            # Window rows iy whose n block rows include ``by``, scored together
+            # in groups of up to _MAX_ROWS.
+            first = max(first_row, (by - n + step) // step)
+            last = min(stop_row - 1, by // step)
+            for s in range(n):
+                offset = (s % step) * per_phase + s // step
+                for group in range(first, last + 1, _MAX_ROWS):
+                    count = min(_MAX_ROWS, last + 1 - group)
+                    w_base = ((by - group * step) * n + s) * n_features
+                    w_step = -step * n * n_features
+                    for chunk in range(chunks):
+                        a0 = (group - first_row) * row_len + chunk * _LANES
+                        at = offset + chunk * _LANES
+                        if count == 4:
+                            _window_dots_4(weights_flat, w_base, w_step, normalised, stride, at,
+                                           second, channels, per_channel, scores, a0, row_len)
+                        elif count == 3:
+                            _window_dots_3(weights_flat, w_base, w_step, normalised, stride, at,
+                                           second, channels, per_channel, scores, a0, row_len)
+                        elif count == 2:
+                            _window_dots_2(weights_flat, w_base, w_step, normalised, stride, at,
+                                           second, channels, per_channel, scores, a0, row_len)
+                        else:
+                            _window_dots_1(weights_flat, w_base, w_step, normalised, stride, at,
+                                           second, channels, per_channel, scores, a0, row_len)
+        # Unsigned indices: with Python's negative-index wraparound LLVM turned
+        # this contiguous copy into vector gathers (slow on AMD).
+        for iy in range(first_row, stop_row):
+            base = uint64((iy - first_row) * row_len)
+            row = out[iy]
+            for ix in range(uint64(cols_out)):
+                row[ix] += scores[base + ix]
+    if spatial_weights.shape[0]:
+        _add_grid(spatial, spatial_weights, spatial_step_rows, spatial_step_cols, band_scores)
+    if tiles_per_window:
+        _add_tile_window_sums(tiles, tiles_per_window, tiles_step, band_scores)
 
 
 @njit(cache=True, parallel=True)
 def _add_hog_scores_phase_parallel(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weights, step,
-                                   out, bands):
+                                   out, bands, no_cells, no_map, no_weights):
     # Bands of window rows write disjoint score rows; block rows on a band
-    # edge are normalised by both bands.
+    # edge are normalised by both bands.  The caller fills the wrapped phases
+    # (no_cells: none to fill here).
     rows_out = out.shape[0]
     for band in prange(bands):
-        _add_hog_scores_phase(cells, per_phase, cpb_y, cpb_x, norm_code, eps, weights, step, out,
-                              band * rows_out // bands, (band + 1) * rows_out // bands)
+        _score_window_rows(no_cells, cells, per_phase, cpb_y, cpb_x, norm_code, eps, weights,
+                           step, out, band * rows_out // bands, (band + 1) * rows_out // bands,
+                           out, no_map, no_weights, 1, 1, no_map, 0, 1)
+
+
+# The arguments of _score_window_rows that switch a part off (empty arrays: nothing is
+# ever written to them).
+_NO_HOG = (np.zeros((0, 0, 0, 0), np.float32), np.zeros((0, 0, 0, 0), np.float32), 1, 1, 1, 0,
+           float(EPS), np.zeros((0, 0, 0), np.float32), 1)
+_NO_SPATIAL = (np.zeros((0, 0), np.float32), np.zeros((0, 0), np.float32), 1, 1)
+_NO_TILES = (np.zeros((0, 0), np.float32), 0, 1)
 
 
 def phase_scoring_pad(cells_x, step_cells, cells_per_block):
@@ -541,35 +570,93 @@ def add_hog_scores_from_phase_cells(cells, cells_x, cells_per_block, norm, weigh
         they cover are read (and their padding written).
     """
     cpb_y, cpb_x = int(cells_per_block[0]), int(cells_per_block[1])
-    n, _, length = weights.shape
-    rows, channels, nbins, positions = cells.shape
-    if cells.dtype != np.float32 or not cells.flags.c_contiguous:
-        raise ValueError("phase-layout cells must be a C-contiguous float32 array")
-    if length != channels * cpb_y * cpb_x * nbins:
-        raise ValueError(f"weights have {length} features per block, cells give "
-                         f"{channels * cpb_y * cpb_x * nbins}")
-    per_phase = -(-int(cells_x) // step_cells)
-    needed = step_cells * per_phase + phase_scoring_pad(cells_x, step_cells, cells_per_block)
-    if positions < needed:
-        raise ValueError(f"phase-layout cells need {needed} positions (see phase_scoring_pad) "
-                         f"for {cells_x} columns stepped by {step_cells}, got {positions}")
-    blocks_shape = (rows - cpb_y + 1, cells_x - cpb_x + 1)
-    _check_fits(out, blocks_shape, (n, n), step_cells)
+    n = weights.shape[0]
+    per_phase = _phase_cells_checked(cells, cells_x, cells_per_block, weights, step_cells, out)
     first, stop = (0, out.shape[0]) if window_rows is None else (
         max(0, int(window_rows[0])), min(out.shape[0], int(window_rows[1])))
     if out.shape[1] == 0 or first >= stop:
         return
     # The cell rows the band's windows cover.
-    _fill_wrapped_phases(cells[first * step_cells:(stop - 1) * step_cells + n + cpb_y - 1],
-                         per_phase, int(step_cells), cpb_x - 1)
+    wrapped = cells[first * step_cells:(stop - 1) * step_cells + n + cpb_y - 1]
     weights = np.ascontiguousarray(weights, dtype=np.float32)
     args = (cells, per_phase, cpb_y, cpb_x, NORM_CODES[norm], float(eps), weights,
             int(step_cells), out)
     bands = min(numba.get_num_threads(), stop - first) if parallel and window_rows is None else 1
     if bands > 1:
-        _add_hog_scores_phase_parallel(*args, bands)
+        _fill_wrapped_phases(wrapped, per_phase, int(step_cells), cpb_x - 1)
+        _add_hog_scores_phase_parallel(*args, bands, _NO_HOG[0], *_NO_SPATIAL[:2])
     else:
-        _add_hog_scores_phase(*args, first, stop)
+        _score_window_rows(wrapped, *args, first, stop, out, *_NO_SPATIAL, *_NO_TILES)
+
+
+def score_window_rows(scores, window_rows, window, step_px, hog=None, spatial=None, tiles=None):
+    """Add every part of the scores of some window rows, in one kernel call.
+
+    The same sums as :func:`add_hog_scores_from_phase_cells`,
+    :func:`add_spatial_scores` and :func:`add_tile_window_sums` called in
+    turn on the rows' windows.  Each call from Python takes the GIL back when
+    it returns, and a thread that finds it held sleeps: on the 2-core
+    virtual machines here a sleeping thread takes 30-50 microseconds to
+    wake, so frames scored on two threads at once lose less time with one
+    call a scale than with three.
+
+    Parameters
+    ----------
+    scores : ndarray of float32, shape (Ny, Nx)
+        The scale's score grid (C-contiguous), added to in place.
+    window_rows : tuple of int
+        ``(first, stop)``: window rows ``first`` .. ``stop - 1`` are scored.
+    window : int
+        Window side in pixels of the scale.
+    step_px : int
+        Window step in pixels of the scale.
+    hog : tuple, optional
+        ``(cells, cells_x, cells_per_block, norm, weights, step_cells)``, as
+        :func:`add_hog_scores_from_phase_cells` takes them: the scale's
+        phase-layout cells (their padding positions are scratch), and so on.
+    spatial : tuple, optional
+        ``(box, weights)``: the scale's box-averaged image, shape
+        ``(Hs, Ws, 3)`` with ``window // S`` pixels per box, and the spatial
+        weights, shape ``(S, S, 3)``.
+    tiles : tuple, optional
+        ``(tile_sums, tile)``: the scale's per-tile histogram weight sums
+        (:func:`fastdet.kernels.colour.colour_maps`) and the tile side in
+        pixels.
+    """
+    first, stop = max(0, int(window_rows[0])), min(scores.shape[0], int(window_rows[1]))
+    if scores.shape[1] == 0 or first >= stop:
+        return
+    if scores.dtype != np.float32 or not scores.flags.c_contiguous:
+        raise ValueError("the score grid must be a C-contiguous float32 array")
+    band_scores = scores[first:stop]
+    # Pixel rows the band's windows cover.
+    top, bottom = first * step_px, (stop - 1) * step_px + window
+    hog_args = _NO_HOG
+    if hog is not None:
+        cells, cells_x, cells_per_block, norm, weights, step_cells = hog
+        per_phase = _phase_cells_checked(cells, cells_x, cells_per_block, weights, step_cells,
+                                         scores)
+        cpb_y, cpb_x = int(cells_per_block[0]), int(cells_per_block[1])
+        wrapped = cells[first * step_cells:(stop - 1) * step_cells + weights.shape[0] + cpb_y - 1]
+        hog_args = (wrapped, cells, per_phase, cpb_y, cpb_x, NORM_CODES[norm], float(EPS),
+                    np.ascontiguousarray(weights, dtype=np.float32), int(step_cells))
+    spatial_args = _NO_SPATIAL
+    if spatial is not None:
+        box, weights = spatial
+        size, _, channels = weights.shape
+        factor = window // size
+        band = box[top // factor:bottom // factor]
+        _check_fits(band_scores, band.shape[:2], (size, size), step_px // factor)
+        spatial_args = (band.reshape(band.shape[0], band.shape[1] * channels),
+                        weights.reshape(size, size * channels), step_px // factor,
+                        step_px // factor * channels)
+    tile_args = _NO_TILES
+    if tiles is not None:
+        tile_sums, tile = tiles
+        band = tile_sums[top // tile:bottom // tile]
+        _check_fits(band_scores, band.shape, (window // tile, window // tile), step_px // tile)
+        tile_args = (band, window // tile, step_px // tile)
+    _score_window_rows(*hog_args, scores, first, stop, band_scores, *spatial_args, *tile_args)
 
 
 def add_spatial_scores(spatial, weights, step_px, out, parallel=False):
@@ -593,7 +680,7 @@ def add_spatial_scores(spatial, weights, step_px, out, parallel=False):
     kernel(image2d, weights2d, step_px, step_px * channels, out)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _add_tile_window_sums(tiles, size, step, out):
     """out[iy, ix] += sum of tiles[iy*step : +size, ix*step : +size]."""
     rows, cols = tiles.shape
@@ -628,6 +715,31 @@ def add_tile_window_sums(tiles, tiles_per_window, step_tiles, out):
     """
     _check_fits(out, tiles.shape, (tiles_per_window, tiles_per_window), step_tiles)
     _add_tile_window_sums(tiles, tiles_per_window, step_tiles, out)
+
+
+def _phase_cells_checked(cells, cells_x, cells_per_block, weights, step_cells, out):
+    """Check phase-layout cells, HOG weights and a score grid against each other.
+
+    Returns
+    -------
+    int
+        Positions per phase.
+    """
+    cpb_y, cpb_x = int(cells_per_block[0]), int(cells_per_block[1])
+    n, _, length = weights.shape
+    rows, channels, nbins, positions = cells.shape
+    if cells.dtype != np.float32 or not cells.flags.c_contiguous:
+        raise ValueError("phase-layout cells must be a C-contiguous float32 array")
+    if length != channels * cpb_y * cpb_x * nbins:
+        raise ValueError(f"weights have {length} features per block, cells give "
+                         f"{channels * cpb_y * cpb_x * nbins}")
+    per_phase = -(-int(cells_x) // step_cells)
+    needed = step_cells * per_phase + phase_scoring_pad(cells_x, step_cells, cells_per_block)
+    if positions < needed:
+        raise ValueError(f"phase-layout cells need {needed} positions (see phase_scoring_pad) "
+                         f"for {cells_x} columns stepped by {step_cells}, got {positions}")
+    _check_fits(out, (rows - cpb_y + 1, cells_x - cpb_x + 1), (n, n), step_cells)
+    return per_phase
 
 
 def _check_fits(out, map_shape, window_shape, step):

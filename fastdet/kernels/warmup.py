@@ -70,16 +70,16 @@ def _warm_hog():
 
 
 def _warm_score():
-    from .score import (add_hog_scores_from_phase_cells, add_spatial_scores,
-                        add_tile_window_sums, phase_scoring_pad)
+    from .score import phase_scoring_pad, score_window_rows
     pad = phase_scoring_pad(16, 2, (2, 2))
     cells = np.zeros((16, 3, 9, 2 * 8 + pad), np.float32)
-    weights = np.zeros((7, 7, 108), np.float32)
     scores = np.zeros((5, 5), np.float32)
-    add_hog_scores_from_phase_cells(cells, 16, (2, 2), "L2-Hys", weights, 2, scores)
-    add_spatial_scores(np.zeros((40, 40, 3), np.float32), np.zeros((32, 32, 3), np.float32),
-                       8, scores[:2, :2].copy())
-    add_tile_window_sums(np.zeros((16, 16), np.float32), 8, 2, scores)
+    # The detector's sizes: 64-pixel windows stepped by 16 pixels (2 cells),
+    # spatial boxes of 2 pixels, histogram tiles of 16.
+    score_window_rows(scores, (0, 5), 64, 16,
+                      hog=(cells, 16, (2, 2), "L2-Hys", np.zeros((7, 7, 108), np.float32), 2),
+                      spatial=(np.zeros((72, 72, 3), np.float32), np.zeros((32, 32, 3), np.float32)),
+                      tiles=(np.zeros((9, 9), np.float32), 16))
 
 
 def _warm_colour():
@@ -166,7 +166,7 @@ DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "heat", "la
 #: One dispatcher per family whose cache entry tells whether the family was
 #: compiled before (see :func:`cold_families`): module, name.
 _PROBES = {"convert": ("convert", "_bgr_to_hls"), "resize": ("resize", "_resize"),
-           "hog": ("hog", "_cell_rows_u8_fast"), "score": ("score", "_add_hog_scores_phase"),
+           "hog": ("hog", "_cell_rows_u8_fast"), "score": ("score", "_score_window_rows"),
            "colour": ("colour", "_colour_maps"), "heat": ("heat", "box_heat_region"),
            "label": ("label", "heat_blobs"), "refine": ("refine", "box_heat_features"),
            "split": ("label", "split_component"),

@@ -243,10 +243,12 @@ class TrackTable:
         shown = sorted((t for t in self.tracks if t.missed == 0 and not t.lost),
                        key=lambda t: t.id)
         if not shown:
-            return Detections(np.zeros((0, 4), np.int32), np.zeros(0, np.float32),
-                              np.zeros(0, np.int64))
-        return Detections(np.stack([t.history.box for t in shown]), [t.score for t in shown],
-                          [t.id for t in shown])
+            return Detections.of_valid(np.zeros((0, 4), np.int32), np.zeros(0, np.float32),
+                                       np.zeros(0, np.int64))
+        # Smoothed boxes are means of valid int32 boxes: valid int32 boxes.
+        return Detections.of_valid(np.array([t.history.box for t in shown], np.int32),
+                                   np.array([t.score for t in shown], np.float32),
+                                   np.array([t.id for t in shown], np.int64))
 
     @staticmethod
     def _boxes(tracks):

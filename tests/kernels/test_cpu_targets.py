@@ -152,7 +152,8 @@ def _outputs():
     from fastdet.kernels.label import component_boxes, label_components
     from fastdet.kernels.resize import resize_linear
     from fastdet.kernels.score import (add_hog_scores_from_phase_cells, add_spatial_scores,
-                                       add_tile_window_sums, phase_scoring_pad)
+                                       add_tile_window_sums, phase_scoring_pad,
+                                       score_window_rows)
     from naive import (naive_cell_histograms, naive_component_boxes, naive_heat,
                        naive_normalize_blocks, naive_tile_weight_sums, naive_window_sums)
 
@@ -225,6 +226,23 @@ def _outputs():
     tile_scores = np.zeros((3, 5), np.float32)
     add_tile_window_sums(tiles, 4, 1, tile_scores)
     arrays["tile_scores"] = tile_scores
+    # The detector's one call for the three parts adds what the three kernels
+    # add, on this target (windows of 64 pixels stepped by 16 on the 88x136
+    # image of the phase scorer above).
+    scale_tiles, scale_box = colour_maps(image, binned, 16, 2)
+    spatial_weights = rng.normal(size=(32, 32, 3)).astype(np.float32)
+    pad = phase_scoring_pad(cells.shape[1], 2, (2, 2))
+    phase = hog.cell_histograms(image, (8, 8), 9, phase_step=2, phase_pad=pad)
+    fused = np.zeros((2, 5), np.float32)
+    score_window_rows(fused, (0, 2), 64, 16,
+                      hog=(phase, cells.shape[1], (2, 2), "L2-Hys", weights, 2),
+                      spatial=(scale_box, spatial_weights), tiles=(scale_tiles, 16))
+    separate = np.zeros((2, 5), np.float32)
+    add_hog_scores_from_phase_cells(phase, cells.shape[1], (2, 2), "L2-Hys", weights, 2,
+                                    separate)
+    add_spatial_scores(scale_box[:40], spatial_weights, 8, separate)
+    add_tile_window_sums(scale_tiles, 4, 1, separate)
+    np.testing.assert_array_equal(fused, separate)
     # Heat and labels.
     boxes = rng.integers(0, 60, (40, 4)).astype(np.int32)
     boxes[:, 2:] = boxes[:, :2] + rng.integers(4, 30, (40, 2))
