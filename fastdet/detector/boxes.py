@@ -177,23 +177,30 @@ class BoxFinder:
         cfg = self.config.boxes
         ref_w, ref_h = self.config.search.reference_size
         kx, ky = frame_size[0] / ref_w, frame_size[1] / ref_h
-        k = math.sqrt(kx * ky)
-        width = boxes[:, 2] - boxes[:, 0]
-        height = boxes[:, 3] - boxes[:, 1]
-        aspect = width / np.maximum(height, 1)
-        return ((width >= cfg.min_size * k) & (height >= cfg.min_size * k)
-                & (aspect >= cfg.min_aspect) & (aspect <= cfg.max_aspect)
-                & (boxes[:, 3] > cfg.horizon_y * ky))
+        min_size = cfg.min_size * math.sqrt(kx * ky)
+        horizon = cfg.horizon_y * ky
+        keep = []
+        # Plain Python over a frame's few boxes (see _clipped).
+        for x1, y1, x2, y2 in np.asarray(boxes).tolist():
+            width, height = x2 - x1, y2 - y1
+            aspect = width / max(height, 1)
+            keep.append(width >= min_size and height >= min_size
+                        and cfg.min_aspect <= aspect <= cfg.max_aspect and y2 > horizon)
+        return np.array(keep, dtype=bool)
 
 
 def _clipped(boxes, frame_size):
     """Float boxes rounded to whole pixels and clipped to the frame, as int32."""
-    out = np.round(boxes)
     width, height = frame_size
-    # np.minimum(np.maximum(...)) is np.clip without its per-call dispatch cost.
-    out[:, 0] = np.minimum(np.maximum(out[:, 0], 0), width - 1)
-    out[:, 1] = np.minimum(np.maximum(out[:, 1], 0), height - 1)
-    # A box keeps at least one pixel after rounding and clipping.
-    out[:, 2] = np.minimum(np.maximum(out[:, 2], out[:, 0] + 1), width)
-    out[:, 3] = np.minimum(np.maximum(out[:, 3], out[:, 1] + 1), height)
-    return out.astype(np.int32)
+    out = []
+    # Plain Python over a frame's few boxes: the dozen NumPy calls this took
+    # on arrays of a handful of rows cost more, with the GIL held, which a
+    # thread scoring another frame waits for.  round() rounds half to even,
+    # as np.round does.
+    for x1, y1, x2, y2 in boxes.tolist():
+        x1 = min(max(round(x1), 0), width - 1)
+        y1 = min(max(round(y1), 0), height - 1)
+        # A box keeps at least one pixel after rounding and clipping.
+        out.append((x1, y1, min(max(round(x2), x1 + 1), width),
+                    min(max(round(y2), y1 + 1), height)))
+    return np.array(out, np.int32).reshape(-1, 4)

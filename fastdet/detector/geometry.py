@@ -33,7 +33,7 @@ def iou_matrix(boxes_a, boxes_b):
     boxes_b = as_box_array(boxes_b, "boxes_b")
     area_a = box_areas(boxes_a)
     area_b = box_areas(boxes_b)
-    intersection = intersection_matrix(boxes_a, boxes_b)
+    intersection = _intersections(boxes_a, boxes_b)
     union = area_a[:, None] + area_b[None, :] - intersection
     iou = np.zeros_like(intersection)
     np.divide(intersection, union, out=iou, where=union > 0)
@@ -49,7 +49,7 @@ def cover_matrix(boxes_a, boxes_b):
         ``intersection(a_i, b_j) / area(a_i)``; 0 where ``a_i`` has no area.
     """
     boxes_a = as_box_array(boxes_a, "boxes_a")
-    intersection = intersection_matrix(boxes_a, boxes_b)
+    intersection = _intersections(boxes_a, as_box_array(boxes_b, "boxes_b"))
     area = box_areas(boxes_a)[:, None]
     cover = np.zeros_like(intersection)
     np.divide(intersection, area, out=cover, where=area > 0)
@@ -75,8 +75,11 @@ def box_areas(boxes):
 
 def intersection_matrix(boxes_a, boxes_b):
     """Intersection area of every pair of boxes (float64, shape (N, M))."""
-    boxes_a = as_box_array(boxes_a, "boxes_a")
-    boxes_b = as_box_array(boxes_b, "boxes_b")
+    return _intersections(as_box_array(boxes_a, "boxes_a"), as_box_array(boxes_b, "boxes_b"))
+
+
+def _intersections(boxes_a, boxes_b):
+    """:func:`intersection_matrix` of two float64 ``(N, 4)`` arrays."""
     # Broadcast (N, 1) against (1, M): overlap extents of every pair.
     overlap_w = (np.minimum(boxes_a[:, None, 2], boxes_b[None, :, 2])
                  - np.maximum(boxes_a[:, None, 0], boxes_b[None, :, 0]))

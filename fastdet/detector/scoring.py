@@ -17,13 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kernels.colour import colour_maps
-from ..kernels.hog import cell_histograms, phase_layout_shape
-from ..kernels.resize import resize_linear
-from ..kernels.score import (
-    score_window_rows,
-    phase_scoring_pad,
-)
+from ..kernels.colour import ColourMapRows
+from ..kernels.hog import PhaseCellRows, phase_layout_shape
+from ..kernels.resize import RowResizer
+from ..kernels.score import WindowRowScorer, phase_scoring_pad
 from .features import WINDOW, color_planes, histogram_bin_lut, hog_input
 from .plan import search_band
 
@@ -112,10 +109,10 @@ class ScaleScorer:
         hog_w, spatial_w, hist_w = model.split_weights()
         self.hog_weights = np.ascontiguousarray(hog_w)
         self.spatial_weights = np.ascontiguousarray(spatial_w)
-        self._hist_lut = None
+        self.hist_lut = None
         if options.hist_bins:
             bins = histogram_bin_lut(options.hist_bins)
-            self._hist_lut = np.ascontiguousarray(hist_w[:, bins], dtype=np.float32)
+            self.hist_lut = np.ascontiguousarray(hist_w[:, bins], dtype=np.float32)
         self.hog_channels = model.layout.hog_channels
         self._workspace = {}
         self._workspace_lock = threading.Lock()
@@ -162,8 +159,9 @@ class ScaleScorer:
         if region.shape[:2] == (height, width) and region.flags.c_contiguous:
             return region
         # Bit-identical to cv2.resize(..., INTER_LINEAR), in about half its time.
-        return resize_linear(region, plan.scaled_size, out=self._work(plan).resized(channels),
-                             rows=rows)
+        resizer = self._work(plan).resizer(region.shape)
+        resizer(region, *(rows or (0, height)))
+        return resizer.out
 
     # -- the colour-converted band ----------------------------------------------
     def prepare(self, frame, plans):
@@ -316,20 +314,14 @@ class ScaleScorer:
             # is normalised and scored along whole rows, never writing the
             # block map to memory.
             ppc = options.pixels_per_cell
-            cell_histograms(hog_input(converted, grey, options), (ppc, ppc),
-                            options.orientations, out=work.cells,
-                            phase_step=plan.step_cells, phase_pad=work.phase_pad,
-                            rows=(top // ppc, bottom // ppc), keep_unmapped=True)
+            work.cell_rows(hog_input(converted, grey, options), top // ppc, bottom // ppc)
             t2 = time.perf_counter()
             timings["cells"] += t2 - t1
             t1 = t2
-        if work.colour:
-            tile, factor = work.tile, max(work.factor, 1)
+        if work.colour_rows is not None:
             # Tiles and boxes are local to their pixels: the rows' maps are
             # the rows of the scale's maps.
-            colour_maps(converted[top:bottom], self._hist_lut, work.tile, work.factor,
-                        out=(work.tile_sums[top // tile:bottom // tile],
-                             work.box[top // factor:bottom // factor]))
+            work.colour_rows(converted[:work.covered_rows], top, bottom)
             timings["colour_maps"] += time.perf_counter() - t1
 
     def score_windows(self, plan, first, stop, scores, timings):
@@ -337,11 +329,9 @@ class ScaleScorer:
         the features :meth:`score_rows` computed for the rows they cover."""
         if first >= stop:
             return
-        work = self._work(plan)
         t0 = time.perf_counter()
         # One kernel call for the three parts (see score_window_rows).
-        score_window_rows(scores, (first, stop), WINDOW, work.step_px, work.hog_args,
-                          work.spatial_args, work.tile_args)
+        self._work(plan).score_windows(scores, first, stop)
         timings["blocks_score"] += time.perf_counter() - t0
 
 
@@ -363,13 +353,14 @@ class _ScaleWork:
         options = scorer.options
         self.plan = plan
         self._resized = {}
+        self._resizers = {}
         ppc = options.pixels_per_cell
         self.step_px = plan.step_cells * ppc
         width = plan.scaled_size[0]
         cells_y, cells_x = plan.scaled_size[1] // ppc, width // ppc
         cpb = options.cells_per_block
         self.phase_pad = phase_scoring_pad(cells_x, plan.step_cells, (cpb, cpb))
-        self.cells = self.hog_args = None
+        self.cells = self.cell_rows = hog_args = None
         if options.use_hog:
             # Zeros: the positions no cell maps to stay zero from frame to
             # frame (the cell kernels never write them; the scorer rewrites
@@ -378,27 +369,40 @@ class _ScaleWork:
             self.cells = np.zeros(phase_layout_shape(cells_y, cells_x, scorer.hog_channels,
                                                      options.orientations, plan.step_cells,
                                                      self.phase_pad), np.float32)
-            self.hog_args = (self.cells, cells_x, (cpb, cpb), options.block_norm,
-                             scorer.hog_weights, plan.step_cells)
-        self.colour = bool(options.spatial_size or options.hist_bins)
+            self.cell_rows = PhaseCellRows(
+                (plan.scaled_size[1], width, scorer.hog_channels), (ppc, ppc),
+                options.orientations, self.cells, plan.step_cells, self.phase_pad)
+            hog_args = (self.cells, cells_x, (cpb, cpb), options.block_norm,
+                        scorer.hog_weights, plan.step_cells)
         # The histogram tile side and the spatial box factor.
         self.tile = math.gcd(self.step_px, WINDOW)
         self.factor = WINDOW // options.spatial_size if options.spatial_size else 0
-        height = (plan.grid[0] - 1) * self.step_px + WINDOW
+        # The colour maps cover the rows the windows cover.
+        height = self.covered_rows = max(0, (plan.grid[0] - 1) * self.step_px + WINDOW)
         self.tile_sums = np.empty((height // self.tile, width // self.tile) if options.hist_bins
                                   else (0, 0), np.float32)
         self.box = np.empty((height // self.factor, width // self.factor, 3) if self.factor
                             else (0, 0, 3), np.float32)
-        self.spatial_args = (self.box, scorer.spatial_weights) if options.spatial_size else None
-        self.tile_args = (self.tile_sums, self.tile) if options.hist_bins else None
+        self.colour_rows = None
+        if options.spatial_size or options.hist_bins:
+            self.colour_rows = ColourMapRows((height, width, 3), scorer.hist_lut,
+                                             self.tile, self.factor, (self.tile_sums, self.box))
+        self.score_windows = WindowRowScorer(
+            plan.grid, WINDOW, self.step_px, hog_args,
+            (self.box, scorer.spatial_weights) if options.spatial_size else None,
+            (self.tile_sums, self.tile) if options.hist_bins else None)
 
-    def resized(self, channels):
-        """The array a region of ``channels`` channels is resized into (made on first use)."""
-        array = self._resized.get(channels)
-        if array is None:
+    def resizer(self, region_shape):
+        """The :class:`~fastdet.kernels.resize.RowResizer` of regions of this shape to
+        the plan's size (made on first use; one output array per channel count)."""
+        resizer = self._resizers.get(region_shape)
+        if resizer is None:
             width, height = self.plan.scaled_size
-            # setdefault is atomic: threads starting on this plan at once
-            # all get the array stored first.
-            array = self._resized.setdefault(channels,
-                                             np.empty((height, width, channels), np.uint8))
-        return array
+            channels = region_shape[2]
+            # setdefault is atomic: threads starting on this plan at once all
+            # get what was stored first.
+            out = self._resized.setdefault(channels,
+                                           np.empty((height, width, channels), np.uint8))
+            resizer = self._resizers.setdefault(region_shape,
+                                                RowResizer(region_shape, (width, height), out))
+        return resizer

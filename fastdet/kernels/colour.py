@@ -510,6 +510,68 @@ def colour_maps(image, lut=None, tile=8, factor=0, out=(None, None)):
     return tiles, box
 
 
+class ColourMapRows:
+    """:func:`colour_maps` of uint8 images of one shape into one pair of arrays,
+    checked and sized once; each call computes the maps of some pixel rows.
+
+    What the detector calls for every scale of every frame: the checks and
+    sizes of :func:`colour_maps` are worked out here once, so that a call
+    runs little Python beside the kernel (Python holds the GIL, which a
+    thread scoring another frame then waits for).
+
+    Parameters
+    ----------
+    image_shape : tuple of int
+        ``(H, W, 3)`` of the images the calls take.
+    lut, tile, factor
+        As :func:`colour_maps` takes them.
+    out : tuple of ndarray
+        ``(tiles, box)``: C-contiguous float32 arrays of the shapes
+        :func:`colour_maps` returns for a whole image.
+    """
+
+    def __init__(self, image_shape, lut, tile, factor, out):
+        height, width, channels = (int(n) for n in image_shape)
+        if channels != 3:
+            raise ValueError(f"expected (H, W, 3) images, got shape {tuple(image_shape)}")
+        if lut is not None and np.shape(lut) != (3, 256):
+            raise ValueError(f"lut must have shape (3, 256), got {np.shape(lut)}")
+        tile, factor = int(tile), int(factor)
+        if tile < 1 or factor < 0:
+            raise ValueError(f"tile must be >= 1 and factor >= 0, got {tile!r}, {factor!r}")
+        self.image_shape = (height, width, 3)
+        self.tile, self.factor = tile, factor
+        self.tiles = _colour_out(out[0], (height // tile, width // tile) if lut is not None
+                                 else (0, 0))
+        self.box = _colour_out(out[1], (height // factor, width // factor, 3) if factor
+                               else (0, 0, 3))
+        self._want = (lut is not None, factor > 0)
+        self._lut = (np.zeros((3, 256), np.float32) if lut is None
+                     else np.ascontiguousarray(lut, np.float32))
+        self._path = PATH_AVX512 if HAVE_AVX512BW else PATH_SCALAR
+        # Rows a call may start or stop at: whole tiles and boxes.
+        self._align = int(np.lcm(tile, max(factor, 1)))
+
+    def __call__(self, image, top, bottom):
+        """Compute the maps of pixel rows ``top`` .. ``bottom - 1`` of ``image`` (both
+        multiples of the tile and the box factor) into :attr:`tiles` and :attr:`box`."""
+        if (image.shape != self.image_shape or image.dtype != np.uint8
+                or not image.flags.c_contiguous):
+            raise ValueError(f"expected a C-contiguous uint8 image of shape {self.image_shape}, "
+                             f"got {image.dtype} {image.shape}")
+        if top % self._align or (bottom % self._align and bottom < self.image_shape[0]):
+            raise ValueError(f"rows {top}..{bottom} cut tiles of {self.tile} or boxes of "
+                             f"{self.factor} pixels")
+        top, bottom = max(0, int(top)), min(self.image_shape[0], int(bottom))
+        if top >= bottom:
+            return
+        tile, factor = self.tile, max(self.factor, 1)
+        tiles = self.tiles[top // tile:bottom // tile] if self._want[0] else self.tiles
+        box = self.box[top // factor:bottom // factor] if self._want[1] else self.box
+        _colour_maps(self._path, image[top:bottom], self._lut, tile, self.factor,
+                     self._want[0], self._want[1], tiles, box)
+
+
 def _colour_out(out, shape):
     if out is None:
         return np.empty(shape, np.float32)

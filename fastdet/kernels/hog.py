@@ -488,6 +488,63 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
     return out
 
 
+class PhaseCellRows:
+    """:func:`cell_histograms` of uint8 images of one shape into one phase-layout
+    array, checked and sized once; each call computes some cell rows.
+
+    What the detector calls for every scale of every frame: the checks and
+    sizes of :func:`cell_histograms` are worked out here once, so that a call
+    runs little Python beside the kernel (Python holds the GIL, which a
+    thread scoring another frame then waits for).  Like ``cell_histograms(...,
+    keep_unmapped=True)``, the positions of ``out`` that no cell maps to are
+    left as they are: keep them zero.
+
+    Parameters
+    ----------
+    image_shape : tuple of int
+        ``(H, W, C)`` of the uint8 images the calls take.
+    pixels_per_cell : tuple of int
+    nbins : int
+    out : ndarray of float32
+        C-contiguous, of :func:`phase_layout_shape` for the image's cell grid.
+    phase_step : int
+    phase_pad : int
+    """
+
+    def __init__(self, image_shape, pixels_per_cell, nbins, out, phase_step, phase_pad):
+        height, width, channels = (int(n) for n in image_shape)
+        ppc_y, ppc_x = int(pixels_per_cell[0]), int(pixels_per_cell[1])
+        nbins, phase_step, phase_pad = int(nbins), int(phase_step), int(phase_pad)
+        if phase_step < 1 or phase_pad < 0:
+            raise ValueError(f"phase_step must be >= 1 and phase_pad >= 0, "
+                             f"got {phase_step!r}, {phase_pad!r}")
+        self.image_shape = (height, width, channels)
+        self.cells_y, cells_x = height // ppc_y, width // ppc_x
+        shape = phase_layout_shape(self.cells_y, cells_x, channels, nbins, phase_step,
+                                   phase_pad)
+        self.out = _output(out, shape)
+        self._out_flat = self.out.reshape(-1)
+        layout = _layout(shape, phase_step, cells_x)
+        bin_lut = _bin_lut(nbins)
+        if ((ppc_y, ppc_x, nbins) == _FAST_PPC + (_FAST_NBINS,) and channels in _FAST_CHANNELS
+                and _fast_rule_ok()):
+            self._kernel, self._args = _cell_rows_u8_fast, (bin_lut, cells_x, layout,
+                                                           self._out_flat)
+        else:
+            self._kernel, self._args = _cell_rows_u8, (ppc_y, ppc_x, nbins, bin_lut, cells_x,
+                                                       layout, self._out_flat)
+
+    def __call__(self, image, first, stop):
+        """Compute cell rows ``first`` .. ``stop - 1`` of ``image`` into :attr:`out`."""
+        if (image.shape != self.image_shape or image.dtype != np.uint8
+                or not image.flags.c_contiguous):
+            raise ValueError(f"expected a C-contiguous uint8 image of shape {self.image_shape}, "
+                             f"got {image.dtype} {image.shape}")
+        first, stop = max(0, int(first)), min(self.cells_y, int(stop))
+        if first < stop and self._out_flat.size:
+            self._kernel(image, first, stop, *self._args)
+
+
 def _zero_unmapped(phase, cells_x, step):
     """Zero the positions of phase-layout cells that no cell column maps to:
     the end of each phase shorter than the longest, and the padding.  Every

@@ -670,3 +670,69 @@ def resize_linear(image, size, out=None, rows=None):
     else:  # a path forced by the tests
         _resize_path(path, source, *x_tables, *y_tables, dest)
     return out
+
+
+class RowResizer:
+    """:func:`resize_linear` of images of one shape to one size, into one array,
+    checked and sized once; each call resizes some rows of the result.
+
+    What the detector calls for every scale of every frame: the checks and
+    tables of :func:`resize_linear` are worked out here once, so that a call
+    runs little Python beside the kernel (Python holds the GIL, which a
+    thread scoring another frame then waits for).
+
+    Parameters
+    ----------
+    source_shape : tuple of int
+        ``(H, W, C)`` of the uint8 images the calls take (they may be strided
+        views whose pixels are contiguous, like :func:`resize_linear`'s).
+    size : tuple of int
+        ``(width, height)`` of the result.
+    out : ndarray of uint8, shape (height, width, C), C-contiguous
+    """
+
+    def __init__(self, source_shape, size, out):
+        source_h, source_w, channels = (int(n) for n in source_shape)
+        width, height = int(size[0]), int(size[1])
+        if width < 1 or height < 1 or source_h < 1 or source_w < 1 or channels < 1:
+            raise ValueError(f"cannot resize a {source_w}x{source_h}x{channels} image to "
+                             f"{width}x{height}")
+        shape = (height, width, channels)
+        if (not isinstance(out, np.ndarray) or out.shape != shape or out.dtype != np.uint8
+                or not out.flags.c_contiguous or not out.flags.writeable):
+            raise ValueError(f"out must be a writeable C-contiguous uint8 array of shape {shape}")
+        self.source_shape = (source_h, source_w, channels)
+        self.out = out
+        self._rows = out.reshape(height, width * channels)
+        self._kind = "copy"
+        if (source_h, source_w) == (2 * height, 2 * width):
+            self._kind = "halve"
+        elif (source_h, source_w) != (height, width):
+            self._kind = "linear"
+            self._x_tables = column_tables(source_w, width, channels)
+            self._y_tables = linear_tables(source_h, height, False)
+
+    def __call__(self, image, first, stop):
+        """Resize rows ``first`` .. ``stop - 1`` of the result of ``image`` into :attr:`out`."""
+        if image.shape != self.source_shape or image.dtype != np.uint8:
+            raise ValueError(f"expected a uint8 image of shape {self.source_shape}, "
+                             f"got {image.dtype} {image.shape}")
+        height = self.out.shape[0]
+        first, stop = max(0, int(first)), min(height, int(stop))
+        if first >= stop:
+            return
+        if self._kind == "copy":
+            self.out[first:stop] = image[first:stop]
+            return
+        source_h, source_w, channels = self.source_shape
+        # Rows of a column-sliced region stay contiguous: a (H, W * C) view.
+        source = image.reshape(source_h, source_w * channels)
+        if source.strides[1] != 1:
+            source = np.ascontiguousarray(source)
+        dest = self._rows[first:stop]
+        if self._kind == "halve":
+            _halve(source[2 * first:2 * stop], channels, dest)
+            return
+        y_first, y_second, w_y_first, w_y_second = self._y_tables
+        _resize(source, *self._x_tables, y_first[first:stop], y_second[first:stop],
+                w_y_first[first:stop], w_y_second[first:stop], dest)

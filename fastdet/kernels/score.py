@@ -623,40 +623,94 @@ def score_window_rows(scores, window_rows, window, step_px, hog=None, spatial=No
         (:func:`fastdet.kernels.colour.colour_maps`) and the tile side in
         pixels.
     """
-    first, stop = max(0, int(window_rows[0])), min(scores.shape[0], int(window_rows[1]))
-    if scores.shape[1] == 0 or first >= stop:
-        return
-    if scores.dtype != np.float32 or not scores.flags.c_contiguous:
-        raise ValueError("the score grid must be a C-contiguous float32 array")
-    band_scores = scores[first:stop]
-    # Pixel rows the band's windows cover.
-    top, bottom = first * step_px, (stop - 1) * step_px + window
-    hog_args = _NO_HOG
-    if hog is not None:
-        cells, cells_x, cells_per_block, norm, weights, step_cells = hog
-        per_phase = _phase_cells_checked(cells, cells_x, cells_per_block, weights, step_cells,
-                                         scores)
-        cpb_y, cpb_x = int(cells_per_block[0]), int(cells_per_block[1])
-        wrapped = cells[first * step_cells:(stop - 1) * step_cells + weights.shape[0] + cpb_y - 1]
-        hog_args = (wrapped, cells, per_phase, cpb_y, cpb_x, NORM_CODES[norm], float(EPS),
-                    np.ascontiguousarray(weights, dtype=np.float32), int(step_cells))
-    spatial_args = _NO_SPATIAL
-    if spatial is not None:
-        box, weights = spatial
-        size, _, channels = weights.shape
-        factor = window // size
-        band = box[top // factor:bottom // factor]
-        _check_fits(band_scores, band.shape[:2], (size, size), step_px // factor)
-        spatial_args = (band.reshape(band.shape[0], band.shape[1] * channels),
-                        weights.reshape(size, size * channels), step_px // factor,
-                        step_px // factor * channels)
-    tile_args = _NO_TILES
-    if tiles is not None:
-        tile_sums, tile = tiles
-        band = tile_sums[top // tile:bottom // tile]
-        _check_fits(band_scores, band.shape, (window // tile, window // tile), step_px // tile)
-        tile_args = (band, window // tile, step_px // tile)
-    _score_window_rows(*hog_args, scores, first, stop, band_scores, *spatial_args, *tile_args)
+    WindowRowScorer(scores.shape, window, step_px, hog, spatial, tiles)(scores, *window_rows)
+
+
+class WindowRowScorer:
+    """:func:`score_window_rows` bound to one scale's maps and weights, checked once.
+
+    The detector scores the same scales frame after frame, from the same
+    arrays: checked and sized here once, a call runs little Python beside
+    the kernel (Python holds the GIL, which a thread scoring another frame
+    then waits for).
+
+    Parameters
+    ----------
+    grid : tuple of int
+        ``(Ny, Nx)``: the shape of the score grids the calls add to.
+    window, step_px, hog, spatial, tiles
+        As :func:`score_window_rows` takes them; the arrays are kept, and
+        each call reads them as they are then.
+    """
+
+    def __init__(self, grid, window, step_px, hog=None, spatial=None, tiles=None):
+        grid = (int(grid[0]), int(grid[1]))
+        self.grid = grid
+        self.window, self.step_px = int(window), int(step_px)
+        shape_only = np.empty(grid, np.float32)
+        self._hog = None
+        if hog is not None:
+            cells, cells_x, cells_per_block, norm, weights, step_cells = hog
+            per_phase = _phase_cells_checked(cells, cells_x, cells_per_block, weights,
+                                             step_cells, shape_only)
+            cpb_y, cpb_x = int(cells_per_block[0]), int(cells_per_block[1])
+            step_cells = int(step_cells)
+            # Cell rows a band reads: from its first window's to its last
+            # window's last block's last cell.
+            self._hog = (cells, step_cells, weights.shape[0] + cpb_y - 1,
+                         (cells, per_phase, cpb_y, cpb_x, NORM_CODES[norm], float(EPS),
+                          np.ascontiguousarray(weights, dtype=np.float32), step_cells))
+        self._spatial = None
+        if spatial is not None:
+            box, weights = spatial
+            size, _, channels = weights.shape
+            factor = self.window // size
+            _check_fits(shape_only, box.shape[:2], (size, size), self.step_px // factor)
+            if not box.flags.c_contiguous or box.dtype != np.float32:
+                raise ValueError("the spatial box image must be a C-contiguous float32 array")
+            self._spatial = (box, factor, box.shape[1] * channels,
+                             np.ascontiguousarray(weights.reshape(size, size * channels),
+                                                  dtype=np.float32),
+                             self.step_px // factor, self.step_px // factor * channels)
+        self._tiles = None
+        if tiles is not None:
+            tile_sums, tile = tiles
+            tile = int(tile)
+            _check_fits(shape_only, tile_sums.shape, (self.window // tile, self.window // tile),
+                        self.step_px // tile)
+            if not tile_sums.flags.c_contiguous or tile_sums.dtype != np.float32:
+                raise ValueError("the tile sums must be a C-contiguous float32 array")
+            self._tiles = (tile_sums, tile, self.window // tile, self.step_px // tile)
+
+    def __call__(self, scores, first, stop):
+        """Add the scores of window rows ``first`` .. ``stop - 1`` to ``scores``."""
+        if scores.shape != self.grid:
+            raise ValueError(f"the score grid has shape {scores.shape}, "
+                             f"the scorer was made for {self.grid}")
+        if scores.dtype != np.float32 or not scores.flags.c_contiguous:
+            raise ValueError("the score grid must be a C-contiguous float32 array")
+        first, stop = max(0, int(first)), min(self.grid[0], int(stop))
+        if self.grid[1] == 0 or first >= stop:
+            return
+        band_scores = scores[first:stop]
+        # Pixel rows the band's windows cover.
+        top, bottom = first * self.step_px, (stop - 1) * self.step_px + self.window
+        hog_args = _NO_HOG
+        if self._hog is not None:
+            cells, step_cells, extent, bound = self._hog
+            hog_args = (cells[first * step_cells:(stop - 1) * step_cells + extent],) + bound
+        spatial_args = _NO_SPATIAL
+        if self._spatial is not None:
+            box, factor, row_length, weights2d, step_rows, step_cols = self._spatial
+            band = box[top // factor:bottom // factor]
+            spatial_args = (band.reshape(band.shape[0], row_length), weights2d, step_rows,
+                            step_cols)
+        tile_args = _NO_TILES
+        if self._tiles is not None:
+            tile_sums, tile, size, step = self._tiles
+            tile_args = (tile_sums[top // tile:bottom // tile], size, step)
+        _score_window_rows(*hog_args, scores, first, stop, band_scores, *spatial_args,
+                           *tile_args)
 
 
 def add_spatial_scores(spatial, weights, step_px, out, parallel=False):

@@ -34,11 +34,13 @@ def greedy_matches(scores, minimum):
     """
     if scores.size == 0:
         return []
-    rows, cols = np.nonzero(scores >= minimum)
-    order = np.argsort(-scores[rows, cols], kind="stable")
+    # Plain Python over the few boxes of a frame (a handful of NumPy calls cost
+    # more); a stable sort, so ties go in row-major order.
+    candidates = sorted(((value, r, c) for r, row in enumerate(scores.tolist())
+                         for c, value in enumerate(row) if value >= minimum),
+                        key=lambda candidate: -candidate[0])
     used_rows, used_cols, pairs = set(), set(), []
-    for k in order:
-        r, c = int(rows[k]), int(cols[k])
+    for _, r, c in candidates:
         if r not in used_rows and c not in used_cols:
             used_rows.add(r)
             used_cols.add(c)
@@ -254,4 +256,4 @@ class TrackTable:
     def _boxes(tracks):
         if not tracks:
             return np.zeros((0, 4), np.int32)
-        return np.stack([t.box for t in tracks]).astype(np.int32)
+        return np.array([t.box for t in tracks], np.int32)

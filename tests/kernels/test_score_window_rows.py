@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from fastdet.kernels.hog import to_phase_layout
-from fastdet.kernels.score import (add_hog_scores_from_phase_cells, add_spatial_scores,
-                                   add_tile_window_sums, phase_scoring_pad, score_window_rows,
-                                   window_count)
+from fastdet.kernels.score import (WindowRowScorer, add_hog_scores_from_phase_cells,
+                                   add_spatial_scores, add_tile_window_sums, phase_scoring_pad,
+                                   score_window_rows, window_count)
 from naive import naive_normalize_blocks, naive_tile_window_sums, naive_window_sums
 
 RTOL = 1e-4
@@ -116,7 +116,7 @@ def test_score_window_rows_match_the_naive_references(rows_px, width_px, window,
 
 def test_score_window_rows_of_an_empty_band_change_nothing():
     scores = np.ones((3, 4), np.float32)
-    box = np.ones((40, 40, 3), np.float32)
+    box = np.ones((48, 56, 3), np.float32)
     score_window_rows(scores, (2, 2), 64, 16, spatial=(box, np.ones((32, 32, 3), np.float32)))
     score_window_rows(scores, (5, 9), 64, 16, spatial=(box, np.ones((32, 32, 3), np.float32)))
     np.testing.assert_array_equal(scores, 1.0)
@@ -132,3 +132,24 @@ def test_score_window_rows_reject_maps_too_small_for_the_windows():
                                    np.zeros((32, 32, 3), np.float32)))
     with pytest.raises(ValueError, match="C-contiguous float32"):
         score_window_rows(np.zeros((4, 4)), (0, 4), 64, 16)
+
+
+def test_a_bound_scorer_adds_what_the_function_adds_and_checks_the_grid():
+    rng = np.random.default_rng(3)
+    cells, phase, box, tiles, tile = scale_maps(rng, 128, 200, 64, 16, 8, 32)
+    hog = (phase, cells.shape[1], (2, 2), "L2-Hys",
+           rng.normal(size=(7, 7, 108)).astype(np.float32), 2)
+    spatial = (box, rng.normal(size=(32, 32, 3)).astype(np.float32))
+    grid = (window_count(128, 64, 16), window_count(200, 64, 16))
+    bound = WindowRowScorer(grid, 64, 16, hog, spatial, (tiles, tile))
+    for first, stop in [(0, grid[0]), (1, 3), (2, 99)]:
+        by_function = np.zeros(grid, np.float32)
+        score_window_rows(by_function, (first, stop), 64, 16, hog, spatial, (tiles, tile))
+        by_bound = np.zeros(grid, np.float32)
+        bound(by_bound, first, stop)
+        np.testing.assert_array_equal(by_bound, by_function)
+        assert np.any(by_bound[first:stop] != 0)
+    with pytest.raises(ValueError, match="made for"):
+        bound(np.zeros((grid[0] + 1, grid[1]), np.float32), 0, 1)
+    with pytest.raises(ValueError, match="C-contiguous float32"):
+        bound(np.zeros(grid, np.float64), 0, 1)

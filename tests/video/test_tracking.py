@@ -93,6 +93,29 @@ def test_load_track_config_rejects_a_non_table(tmp_path):
 
 
 # -- box helpers -----------------------------------------------------------------
+def numpy_greedy_matches(scores, minimum):
+    """Best-first matching by NumPy: a stable argsort of the candidates in row-major order."""
+    rows, cols = np.nonzero(scores >= minimum)
+    used_rows, used_cols, pairs = set(), set(), []
+    for k in np.argsort(-scores[rows, cols], kind="stable"):
+        r, c = int(rows[k]), int(cols[k])
+        if r not in used_rows and c not in used_cols:
+            used_rows.add(r)
+            used_cols.add(c)
+            pairs.append((r, c))
+    return pairs
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (3, 5), (6, 2), (12, 12)])
+def test_greedy_matches_take_pairs_best_first_like_numpy(shape):
+    rng = np.random.default_rng(shape[0] * 13 + shape[1])
+    for _ in range(20):
+        # Scores on a coarse grid: many ties, which go in row-major order.
+        scores = np.round(rng.random(shape) * 4) / 4
+        scores[rng.random(shape) < 0.1] = np.nan
+        assert greedy_matches(scores, 0.25) == numpy_greedy_matches(scores, 0.25)
+
+
 def test_box_iou_and_greedy_matches():
     a = np.array([[0, 0, 10, 10], [20, 20, 30, 30]])
     b = np.array([[0, 0, 10, 5], [25, 20, 35, 30], [100, 100, 110, 110]])
