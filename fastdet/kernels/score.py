@@ -441,9 +441,9 @@ def _score_window_rows(wrapped, cells, per_phase, cpb_y, cpb_x, norm_code, eps, 
                 for p0 in range(uint64(0), stride, lanes):
                     if norm_code == 3:
                         _normalise_l2_hys(cells_flat, c_base, row_stride, uint64(length), k,
-                                          uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy, e_base,
-                                          e_row_stride, p0, bias, eps_sq, normalised, n_base, stride,
-                                          second, s_base)
+                                          uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy,
+                                          e_base, e_row_stride, p0, bias, eps_sq, normalised,
+                                          n_base, stride, second, s_base)
                     elif norm_code == 2:
                         _normalise_l2(cells_flat, c_base, row_stride, uint64(length), k,
                                       uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy, e_base,
@@ -452,8 +452,8 @@ def _score_window_rows(wrapped, cells, per_phase, cpb_y, cpb_x, norm_code, eps, 
                     elif norm_code == 1:
                         _normalise_l1_sqrt(cells_flat, c_base, row_stride, uint64(length), k,
                                            uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy,
-                                           e_base, e_row_stride, p0, bias, eps_sq, normalised, n_base,
-                                           stride, second, s_base)
+                                           e_base, e_row_stride, p0, bias, eps_sq, normalised,
+                                           n_base, stride, second, s_base)
                     else:
                         _normalise_l1(cells_flat, c_base, row_stride, uint64(length), k,
                                       uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy, e_base,
