@@ -514,10 +514,7 @@ class ColourMapRows:
     """:func:`colour_maps` of uint8 images of one shape into one pair of arrays,
     checked and sized once; each call computes the maps of some pixel rows.
 
-    What the detector calls for every scale of every frame: the checks and
-    sizes of :func:`colour_maps` are worked out here once, so that a call
-    runs little Python beside the kernel (Python holds the GIL, which a
-    thread scoring another frame then waits for).
+    For the detector's scales (see :class:`~fastdet.kernels.score.WindowRowScorer`).
 
     Parameters
     ----------

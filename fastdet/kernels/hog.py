@@ -492,12 +492,9 @@ class PhaseCellRows:
     """:func:`cell_histograms` of uint8 images of one shape into one phase-layout
     array, checked and sized once; each call computes some cell rows.
 
-    What the detector calls for every scale of every frame: the checks and
-    sizes of :func:`cell_histograms` are worked out here once, so that a call
-    runs little Python beside the kernel (Python holds the GIL, which a
-    thread scoring another frame then waits for).  Like ``cell_histograms(...,
-    keep_unmapped=True)``, the positions of ``out`` that no cell maps to are
-    left as they are: keep them zero.
+    For the detector's scales (see :class:`~fastdet.kernels.score.WindowRowScorer`).
+    Like ``cell_histograms(..., keep_unmapped=True)``, the positions of
+    ``out`` that no cell maps to are left as they are: keep them zero.
 
     Parameters
     ----------

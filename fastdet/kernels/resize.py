@@ -676,10 +676,7 @@ class RowResizer:
     """:func:`resize_linear` of images of one shape to one size, into one array,
     checked and sized once; each call resizes some rows of the result.
 
-    What the detector calls for every scale of every frame: the checks and
-    tables of :func:`resize_linear` are worked out here once, so that a call
-    runs little Python beside the kernel (Python holds the GIL, which a
-    thread scoring another frame then waits for).
+    For the detector's scales (see :class:`~fastdet.kernels.score.WindowRowScorer`).
 
     Parameters
     ----------

@@ -631,8 +631,12 @@ class WindowRowScorer:
 
     The detector scores the same scales frame after frame, from the same
     arrays: checked and sized here once, a call runs little Python beside
-    the kernel (Python holds the GIL, which a thread scoring another frame
-    then waits for).
+    the kernel.  That Python holds the GIL, which a thread scoring another
+    frame then waits for (and, asleep, takes 35-50 us to wake on the 2-core
+    virtual machines here); so do the bound resize, cell and colour-map
+    calls (:class:`~fastdet.kernels.resize.RowResizer`,
+    :class:`~fastdet.kernels.hog.PhaseCellRows`,
+    :class:`~fastdet.kernels.colour.ColourMapRows`).
 
     Parameters
     ----------

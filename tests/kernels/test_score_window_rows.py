@@ -34,6 +34,19 @@ def scale_maps(rng, rows_px, width_px, window, step_px, ppc, spatial_size):
     return cells, phase, box, tiles, tile
 
 
+def scale_inputs(seed, rows_px, width_px, window, step_px, ppc, spatial_size):
+    """:func:`scale_maps` plus random HOG and spatial weights, the grid and the box factor."""
+    rng = np.random.default_rng(seed)
+    cells, phase, box, tiles, tile = scale_maps(rng, rows_px, width_px, window, step_px, ppc,
+                                                spatial_size)
+    n = window // ppc - 1
+    hog_weights = rng.normal(size=(n, n, 2 * 2 * 3 * 9)).astype(np.float32)
+    spatial_weights = rng.normal(size=(spatial_size, spatial_size, 3)).astype(np.float32)
+    grid = (window_count(rows_px, window, step_px), window_count(width_px, window, step_px))
+    return (cells, phase, box, tiles, tile, hog_weights, spatial_weights, grid,
+            window // spatial_size)
+
+
 # (scaled rows, scaled width, window, step in pixels, pixels per cell, spatial size)
 SCALES = [
     (128, 200, 64, 16, 8, 32),    # the detector's step at its windows
@@ -48,15 +61,10 @@ SCALES = [
 @pytest.mark.parametrize("parts", ["all", "hog", "spatial", "tiles", "colour"])
 def test_score_window_rows_adds_what_the_separate_kernels_add(rows_px, width_px, window,
                                                               step_px, ppc, spatial_size, parts):
-    rng = np.random.default_rng(rows_px + width_px + step_px)
-    cells, phase, box, tiles, tile = scale_maps(rng, rows_px, width_px, window, step_px, ppc,
-                                                spatial_size)
-    n = window // ppc - 1
+    (cells, phase, box, tiles, tile, hog_weights, spatial_weights, grid,
+     factor) = scale_inputs(rows_px + width_px + step_px, rows_px, width_px, window, step_px,
+                            ppc, spatial_size)
     step_cells = step_px // ppc
-    hog_weights = rng.normal(size=(n, n, 2 * 2 * 3 * 9)).astype(np.float32)
-    spatial_weights = rng.normal(size=(spatial_size, spatial_size, 3)).astype(np.float32)
-    grid = (window_count(rows_px, window, step_px), window_count(width_px, window, step_px))
-    factor = window // spatial_size
     use = {"all": "hst", "hog": "h", "spatial": "s", "tiles": "t", "colour": "st"}[parts]
     bias = np.float32(-0.25)
     for first, stop in [(0, grid[0]), (grid[0] // 2, grid[0]), (1, 2), (0, 1)]:
@@ -89,20 +97,15 @@ def test_score_window_rows_adds_what_the_separate_kernels_add(rows_px, width_px,
 @pytest.mark.parametrize("rows_px, width_px, window, step_px, ppc, spatial_size", SCALES)
 def test_score_window_rows_match_the_naive_references(rows_px, width_px, window, step_px, ppc,
                                                        spatial_size):
-    rng = np.random.default_rng(7 * rows_px + width_px)
-    cells, phase, box, tiles, tile = scale_maps(rng, rows_px, width_px, window, step_px, ppc,
-                                                spatial_size)
-    n = window // ppc - 1
+    (cells, phase, box, tiles, tile, hog_weights, spatial_weights, grid,
+     factor) = scale_inputs(7 * rows_px + width_px, rows_px, width_px, window, step_px, ppc,
+                            spatial_size)
     step_cells = step_px // ppc
-    hog_weights = rng.normal(size=(n, n, 2 * 2 * 3 * 9)).astype(np.float32)
-    spatial_weights = rng.normal(size=(spatial_size, spatial_size, 3)).astype(np.float32)
-    grid = (window_count(rows_px, window, step_px), window_count(width_px, window, step_px))
     scores = np.zeros(grid, np.float32)
     score_window_rows(scores, (0, grid[0]), window, step_px,
                       hog=(phase, cells.shape[1], (2, 2), "L2-Hys", hog_weights, step_cells),
                       spatial=(box, spatial_weights), tiles=(tiles, tile))
     blocks = naive_normalize_blocks(cells.astype(np.float64), (2, 2), "L2-Hys")
-    factor = window // spatial_size
     hog_part = naive_window_sums(blocks, hog_weights, step_cells, grid)
     spatial_part = naive_window_sums(box, spatial_weights, step_px // factor, grid)
     tile_part = naive_tile_window_sums(tiles, window // tile, step_px // tile, grid)
@@ -135,12 +138,10 @@ def test_score_window_rows_reject_maps_too_small_for_the_windows():
 
 
 def test_a_bound_scorer_adds_what_the_function_adds_and_checks_the_grid():
-    rng = np.random.default_rng(3)
-    cells, phase, box, tiles, tile = scale_maps(rng, 128, 200, 64, 16, 8, 32)
-    hog = (phase, cells.shape[1], (2, 2), "L2-Hys",
-           rng.normal(size=(7, 7, 108)).astype(np.float32), 2)
-    spatial = (box, rng.normal(size=(32, 32, 3)).astype(np.float32))
-    grid = (window_count(128, 64, 16), window_count(200, 64, 16))
+    (cells, phase, box, tiles, tile, hog_weights, spatial_weights, grid,
+     _) = scale_inputs(3, 128, 200, 64, 16, 8, 32)
+    hog = (phase, cells.shape[1], (2, 2), "L2-Hys", hog_weights, 2)
+    spatial = (box, spatial_weights)
     bound = WindowRowScorer(grid, 64, 16, hog, spatial, (tiles, tile))
     for first, stop in [(0, grid[0]), (1, 3), (2, 99)]:
         by_function = np.zeros(grid, np.float32)
