@@ -355,42 +355,42 @@ class _ScaleWork:
         self._resized = {}
         self._resizers = {}
         ppc = options.pixels_per_cell
-        self.step_px = plan.step_cells * ppc
+        step_px = plan.step_cells * ppc
         width = plan.scaled_size[0]
         cells_y, cells_x = plan.scaled_size[1] // ppc, width // ppc
         cpb = options.cells_per_block
-        self.phase_pad = phase_scoring_pad(cells_x, plan.step_cells, (cpb, cpb))
-        self.cells = self.cell_rows = hog_args = None
+        self.cell_rows = hog_args = None
         if options.use_hog:
+            phase_pad = phase_scoring_pad(cells_x, plan.step_cells, (cpb, cpb))
             # Zeros: the positions no cell maps to stay zero from frame to
             # frame (the cell kernels never write them; the scorer rewrites
-            # its wrapped phases before reading them), so the cells are
-            # computed with ``keep_unmapped``.
-            self.cells = np.zeros(phase_layout_shape(cells_y, cells_x, scorer.hog_channels,
-                                                     options.orientations, plan.step_cells,
-                                                     self.phase_pad), np.float32)
+            # its wrapped phases before reading them), so the cell rows leave
+            # them as they are.
+            cells = np.zeros(phase_layout_shape(cells_y, cells_x, scorer.hog_channels,
+                                                options.orientations, plan.step_cells,
+                                                phase_pad), np.float32)
             self.cell_rows = PhaseCellRows(
                 (plan.scaled_size[1], width, scorer.hog_channels), (ppc, ppc),
-                options.orientations, self.cells, plan.step_cells, self.phase_pad)
-            hog_args = (self.cells, cells_x, (cpb, cpb), options.block_norm,
-                        scorer.hog_weights, plan.step_cells)
+                options.orientations, cells, plan.step_cells, phase_pad)
+            hog_args = (cells, cells_x, (cpb, cpb), options.block_norm, scorer.hog_weights,
+                        plan.step_cells)
         # The histogram tile side and the spatial box factor.
-        self.tile = math.gcd(self.step_px, WINDOW)
-        self.factor = WINDOW // options.spatial_size if options.spatial_size else 0
+        tile = math.gcd(step_px, WINDOW)
+        factor = WINDOW // options.spatial_size if options.spatial_size else 0
         # The colour maps cover the rows the windows cover.
-        height = self.covered_rows = max(0, (plan.grid[0] - 1) * self.step_px + WINDOW)
-        self.tile_sums = np.empty((height // self.tile, width // self.tile) if options.hist_bins
-                                  else (0, 0), np.float32)
-        self.box = np.empty((height // self.factor, width // self.factor, 3) if self.factor
-                            else (0, 0, 3), np.float32)
+        height = self.covered_rows = max(0, (plan.grid[0] - 1) * step_px + WINDOW)
+        tile_sums = np.empty((height // tile, width // tile) if options.hist_bins else (0, 0),
+                             np.float32)
+        box = np.empty((height // factor, width // factor, 3) if factor else (0, 0, 3),
+                       np.float32)
         self.colour_rows = None
         if options.spatial_size or options.hist_bins:
-            self.colour_rows = ColourMapRows((height, width, 3), scorer.hist_lut,
-                                             self.tile, self.factor, (self.tile_sums, self.box))
+            self.colour_rows = ColourMapRows((height, width, 3), scorer.hist_lut, tile, factor,
+                                             (tile_sums, box))
         self.score_windows = WindowRowScorer(
-            plan.grid, WINDOW, self.step_px, hog_args,
-            (self.box, scorer.spatial_weights) if options.spatial_size else None,
-            (self.tile_sums, self.tile) if options.hist_bins else None)
+            plan.grid, WINDOW, step_px, hog_args,
+            (box, scorer.spatial_weights) if options.spatial_size else None,
+            (tile_sums, tile) if options.hist_bins else None)
 
     def resizer(self, region_shape):
         """The :class:`~fastdet.kernels.resize.RowResizer` of regions of this shape to

@@ -493,21 +493,10 @@ def colour_maps(image, lut=None, tile=8, factor=0, out=(None, None)):
     """
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise ValueError(f"expected a uint8 (H, W, 3) image, got {image.dtype} {image.shape}")
-    if lut is not None and np.shape(lut) != (3, 256):
-        raise ValueError(f"lut must have shape (3, 256), got {np.shape(lut)}")
-    if int(tile) < 1 or int(factor) < 0:
-        raise ValueError(f"tile must be >= 1 and factor >= 0, got {tile!r}, {factor!r}")
-    image = np.ascontiguousarray(image)
-    height, width = image.shape[:2]
-    want_tiles = lut is not None
-    want_box = factor > 0
-    # Every element is written by the kernel: no need to zero them first.
-    tiles = _colour_out(out[0], (height // tile, width // tile) if want_tiles else (0, 0))
-    box = _colour_out(out[1], (height // factor, width // factor, 3) if want_box else (0, 0, 3))
-    lut = np.zeros((3, 256), np.float32) if lut is None else np.ascontiguousarray(lut, np.float32)
-    path = PATH_AVX512 if HAVE_AVX512BW else PATH_SCALAR
-    _colour_maps(path, image, lut, int(tile), int(factor), want_tiles, want_box, tiles, box)
-    return tiles, box
+    # Every element is written by the kernel: new arrays need no zeroing.
+    rows = ColourMapRows(image.shape, lut, tile, factor, out)
+    rows(np.ascontiguousarray(image), 0, image.shape[0])
+    return rows.tiles, rows.box
 
 
 class ColourMapRows:

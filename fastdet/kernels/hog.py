@@ -521,15 +521,9 @@ class PhaseCellRows:
                                    phase_pad)
         self.out = _output(out, shape)
         self._out_flat = self.out.reshape(-1)
-        layout = _layout(shape, phase_step, cells_x)
-        bin_lut = _bin_lut(nbins)
-        if ((ppc_y, ppc_x, nbins) == _FAST_PPC + (_FAST_NBINS,) and channels in _FAST_CHANNELS
-                and _fast_rule_ok()):
-            self._kernel, self._args = _cell_rows_u8_fast, (bin_lut, cells_x, layout,
-                                                           self._out_flat)
-        else:
-            self._kernel, self._args = _cell_rows_u8, (ppc_y, ppc_x, nbins, bin_lut, cells_x,
-                                                       layout, self._out_flat)
+        self._kernel, self._args = _serial_cell_rows(ppc_y, ppc_x, nbins, channels, cells_x,
+                                                     _layout(shape, phase_step, cells_x),
+                                                     self._out_flat)
 
     def __call__(self, image, first, stop):
         """Compute cell rows ``first`` .. ``stop - 1`` of ``image`` into :attr:`out`."""
@@ -555,21 +549,31 @@ def _zero_unmapped(phase, cells_x, step):
 
 def _u8_cells(image, ppc_y, ppc_x, nbins, parallel, first, stop, cells_x, layout, out_flat):
     """Cell rows ``first`` .. ``stop - 1`` of a uint8 image into ``out_flat``."""
-    bin_lut = _bin_lut(nbins)
-    fast = ((ppc_y, ppc_x, nbins) == _FAST_PPC + (_FAST_NBINS,)
-            and image.shape[2] in _FAST_CHANNELS and _fast_rule_ok())
     bands = min(numba.get_num_threads(), stop - first) if parallel and first == 0 else 1
-    if fast and bands > 1:
-        _cell_histograms_u8_fast_parallel(image, bin_lut, bands, stop, cells_x, layout,
+    if bands <= 1:
+        kernel, args = _serial_cell_rows(ppc_y, ppc_x, nbins, image.shape[2], cells_x, layout,
+                                         out_flat)
+        kernel(image, first, stop, *args)
+    elif _fast_path(ppc_y, ppc_x, nbins, image.shape[2]):
+        _cell_histograms_u8_fast_parallel(image, _bin_lut(nbins), bands, stop, cells_x, layout,
                                           out_flat)
-    elif fast:
-        _cell_rows_u8_fast(image, first, stop, bin_lut, cells_x, layout, out_flat)
-    elif bands > 1:
-        _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, bin_lut, bands, stop,
-                                     cells_x, layout, out_flat)
     else:
-        _cell_rows_u8(image, first, stop, ppc_y, ppc_x, nbins, bin_lut, cells_x, layout,
-                      out_flat)
+        _cell_histograms_u8_parallel(image, ppc_y, ppc_x, nbins, _bin_lut(nbins), bands, stop,
+                                     cells_x, layout, out_flat)
+
+
+def _fast_path(ppc_y, ppc_x, nbins, channels):
+    """Whether uint8 cells of these settings take the vector path."""
+    return ((ppc_y, ppc_x, nbins) == _FAST_PPC + (_FAST_NBINS,) and channels in _FAST_CHANNELS
+            and _fast_rule_ok())
+
+
+def _serial_cell_rows(ppc_y, ppc_x, nbins, channels, cells_x, layout, out_flat):
+    """``(kernel, args)``: ``kernel(image, first, stop, *args)`` computes uint8 cell rows."""
+    bin_lut = _bin_lut(nbins)
+    if _fast_path(ppc_y, ppc_x, nbins, channels):
+        return _cell_rows_u8_fast, (bin_lut, cells_x, layout, out_flat)
+    return _cell_rows_u8, (ppc_y, ppc_x, nbins, bin_lut, cells_x, layout, out_flat)
 
 
 @functools.lru_cache(maxsize=None)

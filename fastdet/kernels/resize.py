@@ -636,39 +636,11 @@ def resize_linear(image, size, out=None, rows=None):
                          f"{getattr(image, 'dtype', type(image))} {getattr(image, 'shape', '')}")
     if len(size) != 2:
         raise ValueError(f"size must be (width, height), got {size!r}")
-    width, height = int(size[0]), int(size[1])
-    source_h, source_w, channels = image.shape
-    if width < 1 or height < 1 or source_h < 1 or source_w < 1 or channels < 1:
-        raise ValueError(f"cannot resize a {source_w}x{source_h}x{channels} image to "
-                         f"{width}x{height}")
-    shape = (height, width, channels)
     if out is None:
-        out = np.empty(shape, dtype=np.uint8)
-    elif (not isinstance(out, np.ndarray) or out.shape != shape or out.dtype != np.uint8
-          or not out.flags.c_contiguous or not out.flags.writeable):
-        raise ValueError(f"out must be a writeable C-contiguous uint8 array of shape {shape}")
-    first, stop = (0, height) if rows is None else (max(0, int(rows[0])),
-                                                     min(height, int(rows[1])))
-    if first >= stop:
-        return out
-    if (source_h, source_w) == (height, width):
-        out[first:stop] = image[first:stop]
-        return out
-    # Rows of a column-sliced region stay contiguous: a (H, W * C) view.
-    source = image.reshape(source_h, source_w * channels)
-    if source.strides[1] != 1:
-        source = np.ascontiguousarray(source)
-    dest = out.reshape(height, width * channels)[first:stop]
-    if (source_h, source_w) == (2 * height, 2 * width):
-        _halve(source[2 * first:2 * stop], channels, dest)
-        return out
-    x_tables = column_tables(source_w, width, channels)
-    y_tables = [table[first:stop] for table in linear_tables(source_h, height, False)]
-    path = 0 if HAVE_AVX512BW else 1 if HAVE_AVX2 else 2 if HAVE_SSSE3 else 3
-    if path == NATIVE_PATH:
-        _resize(source, *x_tables, *y_tables, dest)
-    else:  # a path forced by the tests
-        _resize_path(path, source, *x_tables, *y_tables, dest)
+        # Negative sizes are refused by RowResizer, with the sizes named.
+        out = np.empty((max(0, int(size[1])), max(0, int(size[0])), image.shape[2]), np.uint8)
+    resizer = RowResizer(image.shape, size, out)
+    resizer(image, *((0, out.shape[0]) if rows is None else rows))
     return out
 
 
@@ -708,6 +680,8 @@ class RowResizer:
             self._kind = "linear"
             self._x_tables = column_tables(source_w, width, channels)
             self._y_tables = linear_tables(source_h, height, False)
+            # The tests force the other paths by switching the HAVE_* flags.
+            self._path = 0 if HAVE_AVX512BW else 1 if HAVE_AVX2 else 2 if HAVE_SSSE3 else 3
 
     def __call__(self, image, first, stop):
         """Resize rows ``first`` .. ``stop - 1`` of the result of ``image`` into :attr:`out`."""
@@ -730,6 +704,8 @@ class RowResizer:
         if self._kind == "halve":
             _halve(source[2 * first:2 * stop], channels, dest)
             return
-        y_first, y_second, w_y_first, w_y_second = self._y_tables
-        _resize(source, *self._x_tables, y_first[first:stop], y_second[first:stop],
-                w_y_first[first:stop], w_y_second[first:stop], dest)
+        y_tables = [table[first:stop] for table in self._y_tables]
+        if self._path == NATIVE_PATH:
+            _resize(source, *self._x_tables, *y_tables, dest)
+        else:
+            _resize_path(self._path, source, *self._x_tables, *y_tables, dest)
