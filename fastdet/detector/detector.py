@@ -30,11 +30,13 @@ from .scoring import STAGES, Hits, ScaleScorer, kernel_families
 
 @dataclass(frozen=True)
 class _Windows:
-    """All windows of a frame size: boxes, the plan each is from, where each plan starts."""
+    """All windows of a frame size: boxes, the plan each is from, and the score
+    array a frame's scales are scored into, one grid view per plan."""
 
     boxes: np.ndarray        # int32 (N, 4)
     scale_index: np.ndarray  # int64 (N,)
-    starts: list
+    scores: np.ndarray       # float32 (N,), refilled every frame under the detection lock
+    grids: list              # per plan, its (Ny, Nx) view of ``scores``
 
 
 class _Aborted(Exception):
@@ -289,10 +291,10 @@ class Detector:
         bands = self.bands(size)
         windows = self._windows(size)
         # Every scale's grid is a view of one score array: one threshold and
-        # one gather find the hits of all of them.
-        scores = np.full(len(windows.scale_index), self.model.bias, dtype=np.float32)
-        grids = [scores[start:start + plan.n_windows].reshape(plan.grid)
-                 for plan, start in zip(plans, windows.starts)]
+        # one gather find the hits of all of them.  The array is the frame
+        # size's own, reused (the hits are copied out of it).
+        scores, grids = windows.scores, windows.grids
+        scores.fill(self.model.bias)
         prepared = self.scorer.frame_buffers(plans)
         workers = min(self.threads, max(len(bands), 1))
         if workers > 1:
@@ -312,11 +314,15 @@ class Detector:
         if windows is None:
             plans = self.plans(frame_size)
             counts = [plan.n_windows for plan in plans]
+            starts = np.cumsum([0] + counts).tolist()
+            scores = np.empty(starts[-1], np.float32)
             windows = self._all_windows[frame_size] = _Windows(
                 np.concatenate([plan.boxes for plan in plans]) if plans
                 else np.zeros((0, 4), np.int32),
                 np.repeat(np.arange(len(plans), dtype=np.int64), counts),
-                np.cumsum([0] + counts[:-1]).tolist())
+                scores,
+                [scores[start:start + plan.n_windows].reshape(plan.grid)
+                 for plan, start in zip(plans, starts)])
         return windows
 
     def _score_share(self, frame, prepared, plans, tasks, grids, timings, part, converted=None):

@@ -40,6 +40,41 @@ def iou_matrix(boxes_a, boxes_b):
     return iou
 
 
+def iou_rows(boxes_a, boxes_b):
+    """:func:`iou_matrix` of a few boxes, in plain Python.
+
+    For the tracker, which matches a frame's handful of boxes every frame
+    with the GIL held: the NumPy version's twenty-odd array operations cost
+    about 25 us on two boxes against two, this about 3 us.  The values are
+    the same: every term is an integer (so exact in float64, as in
+    :func:`iou_matrix`) up to the one correctly rounded division.
+
+    Parameters
+    ----------
+    boxes_a, boxes_b : sequence of sequence of int
+        ``[x1, y1, x2, y2]`` boxes (e.g. ``array.tolist()`` of int boxes),
+        ``x2``/``y2`` exclusive.
+
+    Returns
+    -------
+    list of list of float
+        ``iou[i][j]`` of ``boxes_a[i]`` and ``boxes_b[j]``; 0.0 for pairs that
+        do not overlap or whose union is empty.
+    """
+    areas_b = [max(x2 - x1, 0) * max(y2 - y1, 0) for x1, y1, x2, y2 in boxes_b]
+    rows = []
+    for ax1, ay1, ax2, ay2 in boxes_a:
+        area_a = max(ax2 - ax1, 0) * max(ay2 - ay1, 0)
+        row = []
+        for (bx1, by1, bx2, by2), area_b in zip(boxes_b, areas_b):
+            overlap = (max(min(ax2, bx2) - max(ax1, bx1), 0)
+                       * max(min(ay2, by2) - max(ay1, by1), 0))
+            union = area_a + area_b - overlap
+            row.append(overlap / union if union > 0 else 0.0)
+        rows.append(row)
+    return rows
+
+
 def cover_matrix(boxes_a, boxes_b):
     """Share of each box of ``boxes_a`` lying inside each box of ``boxes_b``.
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..detector.detections import Detections
-from ..detector.geometry import box_areas, intersection_matrix, iou_matrix
+from ..detector.geometry import box_areas, intersection_matrix, iou_rows
 from .patch import PatchModel
 from .smoothing import BoxHistory
 
@@ -23,7 +23,7 @@ def greedy_matches(scores, minimum):
 
     Parameters
     ----------
-    scores : ndarray, shape (N, M)
+    scores : ndarray, shape (N, M), or list of N lists of M floats
         Higher is better (e.g. IoU).
     minimum : float
         Pairs scoring below this are never matched.
@@ -32,11 +32,11 @@ def greedy_matches(scores, minimum):
     -------
     list of tuple of int
     """
-    if scores.size == 0:
-        return []
+    if isinstance(scores, np.ndarray):
+        scores = scores.tolist()
     # Plain Python over the few boxes of a frame (a handful of NumPy calls cost
     # more); a stable sort, so ties go in row-major order.
-    candidates = sorted(((value, r, c) for r, row in enumerate(scores.tolist())
+    candidates = sorted(((value, r, c) for r, row in enumerate(scores)
                          for c, value in enumerate(row) if value >= minimum),
                         key=lambda candidate: -candidate[0])
     used_rows, used_cols, pairs = set(), set(), []
@@ -130,7 +130,7 @@ class TrackTable:
     # -- association without patch tracking ------------------------------------
     def associate(self, detections, frame):
         """Continue tracks with the detections of a fully searched frame (by IoU)."""
-        pairs = greedy_matches(iou_matrix(self._boxes(self.tracks), detections.xyxy),
+        pairs = greedy_matches(iou_rows(self._box_rows(self.tracks), detections.xyxy.tolist()),
                                self.config.match_iou)
         matched_tracks = {r for r, _ in pairs}
         matched_dets = {c for _, c in pairs}
@@ -206,7 +206,7 @@ class TrackTable:
         if followed:
             used = inside.max(axis=0) >= cfg.merge_overlap
         confirmed = set()
-        for r, c in greedy_matches(iou_matrix(self._boxes(followed), everything.xyxy),
+        for r, c in greedy_matches(iou_rows(self._box_rows(followed), everything.xyxy.tolist()),
                                    cfg.match_iou):
             track = followed[r]
             track.box = everything.xyxy[c].copy()
@@ -217,7 +217,8 @@ class TrackTable:
             track.missed = 0 if r in confirmed else track.missed + 1
         # A lost vehicle found again keeps its id, with a fresh patch.
         remaining = np.flatnonzero(~used)
-        pairs = greedy_matches(iou_matrix(self._boxes(lost), boxes[remaining]), cfg.match_iou)
+        pairs = greedy_matches(iou_rows(self._box_rows(lost), boxes[remaining].tolist()),
+                               cfg.match_iou)
         for r, k in pairs:
             c = remaining[k]
             track = lost[r]
@@ -251,6 +252,10 @@ class TrackTable:
         return Detections.of_valid(np.array([t.history.box for t in shown], np.int32),
                                    np.array([t.score for t in shown], np.float32),
                                    np.array([t.id for t in shown], np.int64))
+
+    @staticmethod
+    def _box_rows(tracks):
+        return [t.box.tolist() for t in tracks]
 
     @staticmethod
     def _boxes(tracks):

@@ -8,6 +8,7 @@ from video_stubs import BlockDetector, background, moving_block, paint, texture
 
 from fastdet.detector.config import load_config
 from fastdet.detector.geometry import iou_matrix as box_iou
+from fastdet.detector.geometry import iou_rows
 from fastdet.detector.scoring import Hits
 from fastdet.errors import ConfigError, InputError
 from fastdet.video.config import TrackConfig, load_track_config
@@ -114,6 +115,26 @@ def test_greedy_matches_take_pairs_best_first_like_numpy(shape):
         scores = np.round(rng.random(shape) * 4) / 4
         scores[rng.random(shape) < 0.1] = np.nan
         assert greedy_matches(scores, 0.25) == numpy_greedy_matches(scores, 0.25)
+
+
+@pytest.mark.parametrize("shape", [(0, 3), (3, 0), (1, 1), (3, 5), (7, 7)])
+def test_iou_rows_equal_iou_matrix_exactly(shape):
+    """The tracker's plain-Python IoU gives iou_matrix's float64 values, bit for bit."""
+    rng = np.random.default_rng(shape[0] * 7 + shape[1])
+    for _ in range(30):
+        # Small coordinates: many touching, nested, identical, inverted and
+        # empty boxes; then frame-sized ones.
+        span = 12 if _ % 2 else 2000
+        a = rng.integers(-2, span, (shape[0], 4)).astype(np.int32)
+        b = rng.integers(-2, span, (shape[1], 4)).astype(np.int32)
+        if len(a) and len(b):
+            b[0] = a[0]
+        rows = iou_rows(a.tolist(), b.tolist())
+        expected = box_iou(a, b)
+        assert len(rows) == shape[0] and all(len(row) == shape[1] for row in rows)
+        assert np.array_equal(np.array(rows, np.float64).reshape(shape), expected)
+        # Lists and arrays of the same scores give the same matches.
+        assert greedy_matches(rows, 0.3) == greedy_matches(expected, 0.3)
 
 
 def test_box_iou_and_greedy_matches():
