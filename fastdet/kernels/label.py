@@ -59,7 +59,10 @@ caller): the family's first compile went from 8.8 to 6.7 s on an AMD EPYC
 boxes) stay separate: inlining those made it slower (10.7-11.3 s).  Without
 ``np.full`` and the float map's ``view``, which Numba compiled as functions
 of their own, it takes 4.8-5.0 s (5.6-5.8 s before; 3 runs each, Numba's own set-up
-not counted).
+not counted).  ``heat_blobs`` labels through ``_label_into`` directly: through
+``label_components_kernel``, a thin wrapper, Numba also compiled the wrapper and
+optimised the labelling code once more in it (4.7-4.9 s against 5.0-5.1 s, Numba's
+set-up counted, 3 alternating runs).
 """
 
 from __future__ import annotations
@@ -305,6 +308,21 @@ def _zero_unused(boxes):
             boxes[row, :] = 0
 
 
+@numba.njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
+def _component_boxes(labels, count):
+    """:func:`component_boxes`, for kernels: Numba builds no Python wrappers
+    for it, which a detection's compile would pay for and never use."""
+    height, width = labels.shape
+    boxes = _sentinel_boxes(count, width, height)
+    for y in range(height):
+        for x in range(width):
+            label = labels[y, x]
+            if 0 < label <= count:
+                _include(boxes, label - 1, x, y)
+    _zero_unused(boxes)
+    return boxes
+
+
 @numba.njit(cache=True, nogil=True)
 def component_boxes(labels, count):
     """Bounding boxes of labelled components.
@@ -325,15 +343,7 @@ def component_boxes(labels, count):
         ``[x1, y1, x2, y2]`` (``x2``, ``y2`` exclusive) of label ``k + 1``.
         Labels without any pixel get ``[0, 0, 0, 0]``.
     """
-    height, width = labels.shape
-    boxes = _sentinel_boxes(count, width, height)
-    for y in range(height):
-        for x in range(width):
-            label = labels[y, x]
-            if 0 < label <= count:
-                _include(boxes, label - 1, x, y)
-    _zero_unused(boxes)
-    return boxes
+    return _component_boxes(labels, count)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -583,7 +593,7 @@ def _car_sized_parts(values, mask, row_units, col_units, levels, min_width, min_
             if count == 0:
                 break
             continue
-        parts = component_boxes(labels, count)
+        parts = _component_boxes(labels, count)
         car_sized = zeros(count, dtype=np.bool_)
         n_car_sized = 0
         for k in range(count):
@@ -727,9 +737,12 @@ def heat_blobs(heat, origin_x, origin_y, threshold, eight_connected, refine, cor
             value = heat[row_starts[i], col_starts[j]]
             values[i, j] = value
             mask[i, j] = 1 if value > threshold else 0
-    labels, count = label_components_kernel(mask, eight_connected)
+    # _label_into, not label_components_kernel (see "Compile time" above).
+    labels = empty((n_rows, n_cols), dtype=np.int32)
+    count = _label_into(mask, eight_connected, labels,
+                        empty(_parent_size(n_rows, n_cols), dtype=np.int32))
 
-    cell_boxes = component_boxes(labels, count)
+    cell_boxes = _component_boxes(labels, count)
     peaks = component_max(labels, count, values)
     probed = zeros(count, dtype=np.bool_)
     n_probed = 0

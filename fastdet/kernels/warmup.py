@@ -32,9 +32,10 @@ import numpy as np
 #: 2026-11-27, mean of two runs, after the kernels stopped calling np.empty,
 #: np.zeros, np.full, np.ones, np.array and array views, each of which Numba
 #: compiled on its own, and the helpers only kernels call lost their Python
-#: wrappers); :func:`split_families` balances two processes with these
-#: weights.
-COMPILE_WEIGHTS = {"label": 5.2, "track": 4.0, "split": 3.9, "hog_api": 3.1, "score": 2.9,
+#: wrappers; label 2026-11-28, after heat_blobs stopped calling
+#: label_components_kernel: 4.7-4.9 s against 5.0-5.1 s in alternating runs);
+#: :func:`split_families` balances two processes with these weights.
+COMPILE_WEIGHTS = {"label": 4.9, "track": 4.0, "split": 3.9, "hog_api": 3.1, "score": 2.9,
                    "hog": 2.0, "colour": 2.0, "resize": 1.7, "heat": 1.6, "refine": 1.6,
                    "convert": 0.8}
 
