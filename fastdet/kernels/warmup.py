@@ -28,16 +28,15 @@ import time
 import numpy as np
 
 #: CPU seconds each family took to compile (empty cache, a process of its
-#: own, Numba's own helpers included), measured on an AMD EPYC (Zen 3, AVX2,
-#: 2026-11-27, mean of two runs, after the kernels stopped calling np.empty,
-#: np.zeros, np.full, np.ones, np.array and array views, each of which Numba
-#: compiled on its own, and the helpers only kernels call lost their Python
-#: wrappers; label 2026-11-28, after heat_blobs stopped calling
-#: label_components_kernel: 4.7-4.9 s against 5.0-5.1 s in alternating runs);
-#: :func:`split_families` balances two processes with these weights.
-COMPILE_WEIGHTS = {"label": 4.9, "track": 4.0, "split": 3.9, "hog_api": 3.1, "score": 2.9,
-                   "hog": 2.0, "colour": 2.0, "resize": 1.7, "heat": 1.6, "refine": 1.6,
-                   "convert": 0.8}
+#: own, Numba's own helpers included), measured on an AMD EPYC (Zen 3, AVX2):
+#: the detection's families 2026-11-28, mean of two runs, after heat_blobs
+#: stopped calling label_components_kernel and component_boxes' wrappers and
+#: resize stopped choosing its horizontal pass in a kernel of its own; the
+#: others 2026-11-27.  :func:`split_families` balances two processes with
+#: these weights.
+COMPILE_WEIGHTS = {"label": 4.4, "track": 4.0, "split": 3.6, "hog_api": 3.1, "score": 2.8,
+                   "hog": 2.0, "colour": 2.0, "heat": 1.6, "refine": 1.6, "resize": 1.5,
+                   "convert": 0.75}
 
 
 def _frame_band(height, width):
