@@ -9,16 +9,18 @@ The detector itself runs only serial kernels, from a pool of threads (see
 threads at once.
 
 Compiled kernels are cached in the user's cache folder, never inside the
-installed package (see :mod:`fastdet.kernels.cache`).
+installed package (see :mod:`fastdet.kernels.cache`), and compile with
+Python's garbage collector held back (see :mod:`fastdet.kernels.compile_gc`).
 """
 
 import os
 
 import numba
 
-from . import cache
+from . import cache, compile_gc
 
 if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "workqueue"
 # Before any kernel module is imported: each takes its cache folder when defined.
 cache.configure()
+compile_gc.install()

@@ -11,6 +11,7 @@ import numpy as np
 from numba import njit, prange, uint64
 
 from .hog import _output
+from .views import flat as flat_view
 
 #: Codes of the normalisation schemes, by scikit-image name.
 NORM_CODES = {"L1": 0, "L1-sqrt": 1, "L2": 2, "L2-Hys": 3}
@@ -64,7 +65,7 @@ def _normalize_block_row(cells, energy, by, cpb_y, cpb_x, norm_code, eps, dest_r
     eps32 = np.float32(eps)
     eps_sq = np.float32(eps * eps)
     clip = np.float32(0.2)
-    src_all = cells.reshape(cells.size)
+    src_all = flat_view(cells)
     row_len = uint64(n_cells_x) * cell_len
     for bx in range(n_blocks_x):
         for c in range(uint64(channels)):

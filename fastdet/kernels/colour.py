@@ -72,6 +72,7 @@ from numba.extending import intrinsic
 from ._llvm import HAVE_AVX512BW, box_sums, load_vector, store_vector
 from .alloc import empty
 from .inner import CALLED_FROM_KERNELS_ONLY
+from .views import flat as flat_view
 
 _C = uint64(3)
 _BYTE = uint64(255)
@@ -425,10 +426,10 @@ def _colour_maps(path, image, lut, tile, factor, want_tiles, want_box, tiles, bo
     (PATH_AVX512 or PATH_SCALAR), or PATH_SCALAR if the lut has no bin table."""
     width = image.shape[1]
     row_bytes = width * 3
-    flat = image.reshape(image.size)
-    lut_flat = lut.reshape(lut.size)
+    flat = flat_view(image)
+    lut_flat = flat_view(lut)
     box_h, box_w = box.shape[0], box.shape[1]
-    box_flat = box.reshape(box.size)
+    box_flat = flat_view(box)
     quads = tile % 4 == 0
     table = empty(3 * _BINS, np.float32)
     if path == PATH_AVX512 and not (_CAN_AVX512BW and want_tiles and _bin_table(lut_flat, table)):

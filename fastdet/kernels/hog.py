@@ -49,6 +49,7 @@ from .alloc import empty
 from .cache import kernel_cache_dir
 from .hog_float64 import float64_cell_histograms
 from .inner import CALLED_FROM_KERNELS_ONLY
+from .views import flat as flat_view
 
 # A gradient whose cross product with a bin boundary is below this fraction of
 # its magnitude is re-binned with the exact atan2 rule.  float32 rounding of
@@ -1035,7 +1036,7 @@ def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out):
     (nbins 9, 8x8 cells, 1 or 3 channels); same results as :func:`_cell_rows_u8`
     up to float32 summation order."""
     height, width, channels = image.shape
-    flat = image.reshape(image.size)
+    flat = flat_view(image)
     nbins = _FAST_NBINS
     ppc_y, ppc_x = _FAST_PPC
     row_bytes = width * channels

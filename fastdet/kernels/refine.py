@@ -137,12 +137,15 @@ def box_heat_features(heat, origin_x, origin_y, boxes, threshold, frame_width, f
         for b in range(b1, b2):
             my += rows[b] * ((b + y_shift) / height)
         my /= total
+        # d * d, not d ** 2: the same float64, without compiling Numba's int_power.
         spread_x = 0.0
         for a in range(a1, a2):
-            spread_x += columns[a] * ((a + x_shift) / width - mx) ** 2
+            offset = (a + x_shift) / width - mx
+            spread_x += columns[a] * (offset * offset)
         spread_y = 0.0
         for b in range(b1, b2):
-            spread_y += rows[b] * ((b + y_shift) / height - my) ** 2
+            offset = (b + y_shift) / height - my
+            spread_y += rows[b] * (offset * offset)
         out[row, col] = -mx if flip else mx
         out[row, col + 1] = my
         out[row, col + 2] = math.sqrt(spread_x / total)

@@ -45,6 +45,7 @@ from .alloc import empty, full, zeros
 from .blocks import EPS, NORM_CODES
 from .hog import to_phase_layout
 from .inner import CALLED_FROM_KERNELS_ONLY
+from .views import flat as flat_view
 
 # Reassociation lets LLVM vectorise the dot products; sums then differ from
 # strict left-to-right order only at float32 rounding level.
@@ -72,8 +73,8 @@ def _dot_rows(image_flat, row_len, y0, x0, weights_flat, rows, length):
 @njit(cache=True, nogil=True, inline="always")
 def _add_grid(image2d, weights2d, step_rows, step_cols, out):
     rows, length = weights2d.shape
-    image_flat = image2d.reshape(image2d.size)
-    weights_flat = weights2d.reshape(weights2d.size)
+    image_flat = flat_view(image2d)
+    weights_flat = flat_view(weights2d)
     for iy in range(out.shape[0]):
         for ix in range(out.shape[1]):
             out[iy, ix] += _dot_rows(image_flat, image2d.shape[1], iy * step_rows, ix * step_cols,
@@ -83,8 +84,8 @@ def _add_grid(image2d, weights2d, step_rows, step_cols, out):
 @njit(cache=True, parallel=True)
 def _add_grid_parallel(image2d, weights2d, step_rows, step_cols, out):
     rows, length = weights2d.shape
-    image_flat = image2d.reshape(image2d.size)
-    weights_flat = weights2d.reshape(weights2d.size)
+    image_flat = flat_view(image2d)
+    weights_flat = flat_view(weights2d)
     for iy in prange(out.shape[0]):
         for ix in range(out.shape[1]):
             out[iy, ix] += _dot_rows(image_flat, image2d.shape[1], iy * step_rows, ix * step_cols,
@@ -361,7 +362,7 @@ def _fill_wrapped_phases(cells, per_phase, step, wrap):
     ``q + j * step``, i.e. that of phase ``q % step`` at ``j + q // step``
     (zero past the grid)."""
     rows, channels, nbins, length = cells.shape
-    flat = cells.reshape(cells.size)
+    flat = flat_view(cells)
     k = uint64(per_phase)
     for row in range(uint64(rows * channels * nbins)):
         base = row * uint64(length)
@@ -411,8 +412,8 @@ def _score_window_rows(wrapped, cells, per_phase, cpb_y, cpb_x, norm_code, eps, 
         stride = (uint64(step) * k + lanes - uint64(1)) // lanes * lanes
         chunks = (cols_out + _LANES - 1) // _LANES
         row_len = chunks * _LANES
-        cells_flat = cells.reshape(cells.size)
-        weights_flat = weights.reshape(weights.size)
+        cells_flat = flat_view(cells)
+        weights_flat = flat_view(weights)
         first_block = first_row * step
         stop_block = (stop_row - 1) * step + n
         # Per cell of the band's block rows: the sum a block norm is built from.

@@ -28,14 +28,13 @@ import time
 import numpy as np
 
 #: CPU seconds each family took to compile (empty cache, a process of its
-#: own, Numba's own helpers included), measured on an AMD EPYC (Zen 3, AVX2):
-#: the detection's families 2026-11-28, mean of two runs, after heat_blobs
-#: stopped calling label_components_kernel and component_boxes' wrappers and
-#: resize stopped choosing its horizontal pass in a kernel of its own; the
-#: others 2026-11-27.  :func:`split_families` balances two processes with
-#: these weights.
-COMPILE_WEIGHTS = {"label": 4.4, "track": 4.0, "split": 3.6, "hog_api": 3.1, "score": 2.8,
-                   "hog": 2.0, "colour": 2.0, "heat": 1.6, "refine": 1.6, "resize": 1.5,
+#: own, Numba's own helpers included), measured on an AMD EPYC (Zen 3, AVX2)
+#: on 2026-11-28, mean of two runs, with the collector held back during
+#: compiles (:mod:`.compile_gc`) and no reshape or integer-power
+#: implementations compiled.  :func:`split_families` balances two
+#: processes with these weights.
+COMPILE_WEIGHTS = {"label": 4.2, "track": 3.7, "split": 3.35, "hog_api": 2.8, "score": 2.5,
+                   "hog": 1.8, "colour": 1.7, "heat": 1.5, "resize": 1.45, "refine": 1.45,
                    "convert": 0.75}
 
 
