@@ -10,7 +10,9 @@ straight into the calling kernel: the same data and owner, shape
 ``reshape``.
 
 Only C-layout arrays are accepted (any other is a typing error), so the
-view needs no run-time check.
+view needs no run-time check.  Numba's on-disk cache is keyed on the files
+of the kernels that call it, not on this one: after changing the lowering,
+touch those modules.
 """
 
 from __future__ import annotations
