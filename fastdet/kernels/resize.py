@@ -438,8 +438,13 @@ def _find(held, source):
 #: code stays valid because Numba keys its cache by the host CPU.
 _CAN_AVX512BW, _CAN_AVX2, _CAN_SSSE3 = HAVE_AVX512BW, HAVE_AVX2, HAVE_SSSE3
 
+def _best_path():
+    """The best path the ``HAVE_*`` flags allow (the tests switch them off)."""
+    return 0 if HAVE_AVX512BW else 1 if HAVE_AVX2 else 2 if HAVE_SSSE3 else 3
+
+
 #: The best path this CPU has: the only one :func:`_resize` compiles.
-NATIVE_PATH = 0 if HAVE_AVX512BW else 1 if HAVE_AVX2 else 2 if HAVE_SSSE3 else 3
+NATIVE_PATH = _best_path()
 
 
 @njit(cache=True, nogil=True)
@@ -667,8 +672,7 @@ class RowResizer:
             self._kind = "linear"
             self._x_tables = column_tables(source_w, width, channels)
             self._y_tables = linear_tables(source_h, height, False)
-            # The tests force the other paths by switching the HAVE_* flags.
-            self._path = 0 if HAVE_AVX512BW else 1 if HAVE_AVX2 else 2 if HAVE_SSSE3 else 3
+            self._path = _best_path()
 
     def __call__(self, image, first, stop):
         """Resize rows ``first`` .. ``stop - 1`` of the result of ``image`` into :attr:`out`."""

@@ -201,12 +201,13 @@ class TrackTable:
         boxes = detections.xyxy
         # A new box lying mostly inside a box that was searched around is
         # more of that vehicle (whose box is refitted below), not a new one.
-        inside = intersection_matrix(self._boxes(followed), boxes) / np.maximum(box_areas(boxes), 1)
+        followed_boxes = self._boxes(followed)
+        inside = intersection_matrix(followed_boxes, boxes) / np.maximum(box_areas(boxes), 1)
         used = np.zeros(len(detections), dtype=bool)
         if followed:
             used = inside.max(axis=0) >= cfg.merge_overlap
         confirmed = set()
-        for r, c in greedy_matches(iou_rows(self._box_rows(followed), everything.xyxy.tolist()),
+        for r, c in greedy_matches(iou_rows(followed_boxes.tolist(), everything.xyxy.tolist()),
                                    cfg.match_iou):
             track = followed[r]
             track.box = everything.xyxy[c].copy()
