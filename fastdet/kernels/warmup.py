@@ -225,10 +225,26 @@ def split_families(names):
     return groups
 
 
+#: The helper's program: its path without the working directory (which
+#: ``-c`` puts first), with the folder this fastdet came from first unless
+#: the path has it already, then :func:`main`.
+_HELPER_CODE = ("import sys; sys.path[:] = [p for p in sys.path if p]; "
+                "sys.path.insert(0, sys.argv[1]) if sys.argv[1] not in sys.path else None; "
+                "from fastdet.kernels.warmup import main; sys.exit(main(sys.argv[2:]))")
+
+
 def _helper_process(names):
     """A Python process compiling ``names`` into the same cache folder (the
-    cache module has put it in ``NUMBA_CACHE_DIR``, which the child inherits)."""
-    return subprocess.Popen([sys.executable, "-m", __name__, *names],
+    cache module has put it in ``NUMBA_CACHE_DIR``, which the child inherits).
+
+    The child imports the same fastdet files as this process: Numba files a
+    kernel's cache entries under its source folder, so kernels compiled from
+    another copy (``python -m`` puts the working directory first, and run
+    from a checkout with fastdet installed that is the checkout's copy) would
+    be filed where this process never looks.
+    """
+    package_root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    return subprocess.Popen([sys.executable, "-c", _HELPER_CODE, package_root, *names],
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
 
 

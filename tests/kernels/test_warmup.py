@@ -82,6 +82,24 @@ def test_cold_families_compiled_by_two_processes(tmp_path):
     assert second.stdout.count("loaded from the cache") == 2, second.stdout
 
 
+def test_the_helper_process_compiles_this_fastdet_not_the_working_directorys(tmp_path):
+    """Run from a folder holding another ``fastdet`` (a checkout beside an installed
+    fastdet), the helper still compiles this one's kernels, into the folders this
+    process loads them from."""
+    shadow = tmp_path / "fastdet"
+    shadow.mkdir()
+    (shadow / "__init__.py").write_text("raise ImportError('the working directory's fastdet')\n")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    # This process imports the installed fastdet, as the console script does.
+    command = [sys.executable, "-c", "import sys; sys.path = [p for p in sys.path if p not in "
+               "('', '.')]; from fastdet.cli import console_main; console_main(sys.argv[1:])",
+               "warmup", "--families", "convert", "heat", "--processes", "2"]
+    completed = subprocess.run(command, capture_output=True, text=True, env=env, cwd=tmp_path,
+                               timeout=900)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    assert "| convert | compiled (helper process) |" in completed.stdout, completed.stdout
+
+
 def test_warmup_command_reports_every_family(capsys):
     assert main(["warmup", "--families", "heat", "label", "--processes", "1"]) == 0
     out = capsys.readouterr().out
