@@ -51,16 +51,13 @@ import llvmlite.binding as llvm
 import numba
 from numba.core import caching
 from numba.core.dispatcher import Dispatcher
-from platformdirs import user_cache_dir
 
-from .._version import __version__
+from ..compile_ahead import CACHE_KEY_PREFIX, cache_base
 from . import cached_load
 from .blas_check import import_numba_arraymath
 
 log = logging.getLogger("fastdet.kernels")
 
-#: Overrides the user cache folder (the kernels go in its ``kernels/`` subfolder).
-CACHE_ENV_VAR = "FASTDET_CACHE_DIR"
 
 #: First-run compile time of the kernels a detection needs (two processes,
 #: see ``fastdet.kernels.warmup``), measured on the development machine (AMD
@@ -82,15 +79,14 @@ def cache_key():
     """The folder name that keeps one build's compiled kernels apart from every other."""
     name, features = target_cpu()
     digest = hashlib.sha256(features.encode()).hexdigest()[:12]
-    return f"fastdet-{__version__}-numba-{numba.__version__}-{name}-{digest}"
+    return f"{CACHE_KEY_PREFIX}{numba.__version__}-{name}-{digest}"
 
 
 def kernel_cache_dir():
     """The folder compiled kernels are cached in (see the module notes)."""
     if os.environ.get("NUMBA_CACHE_DIR"):
         return Path(os.environ["NUMBA_CACHE_DIR"])
-    base = os.environ.get(CACHE_ENV_VAR) or user_cache_dir("fastdet", appauthor=False)
-    return Path(base) / "kernels" / cache_key()
+    return cache_base() / cache_key()
 
 
 def _unusable(path):

@@ -20,22 +20,16 @@ and prints one JSON line of seconds per family.
 from __future__ import annotations
 
 import json
+import logging
 import os
-import subprocess
 import sys
 import time
 
 import numpy as np
 
-#: CPU seconds each family took to compile (empty cache, a process of its
-#: own, Numba's own helpers included), measured on an AMD EPYC (Zen 3, AVX2)
-#: on 2026-11-28, mean of two runs, with the collector held back during
-#: compiles (:mod:`.compile_gc`) and no reshape or integer-power
-#: implementations compiled.  :func:`split_families` balances two
-#: processes with these weights.
-COMPILE_WEIGHTS = {"label": 4.2, "track": 3.7, "split": 3.35, "hog_api": 2.8, "score": 2.5,
-                   "hog": 1.8, "colour": 1.7, "heat": 1.5, "resize": 1.45, "refine": 1.45,
-                   "convert": 0.75}
+from ..compile_ahead import DETECTION_FAMILIES, split_families, start_helper, take_early
+
+log = logging.getLogger("fastdet.kernels")
 
 
 def _frame_band(height, width):
@@ -159,9 +153,6 @@ FAMILIES = {"convert": _warm_convert, "resize": _warm_resize, "hog": _warm_hog,
             "label": _warm_label, "refine": _warm_refine, "split": _warm_split,
             "track": _warm_track, "hog_api": _warm_hog_api}
 
-#: The families every detection with the default feature options runs.
-DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "heat", "label", "refine")
-
 #: One dispatcher per family whose cache entry tells whether the family was
 #: compiled before (see :func:`cold_families`): module, name.
 _PROBES = {"convert": ("convert", "_bgr_to_hls"), "resize": ("resize", "_resize"),
@@ -206,48 +197,6 @@ def cold_families(names):
     return cold
 
 
-#: Seconds a helper process needs before it compiles (Python, NumPy, Numba, fastdet).
-HELPER_START_SECONDS = 0.8
-
-
-def split_families(names):
-    """``(here, helper)``: ``names`` in two groups that finish together.
-
-    Greedy, heaviest first, each family to the group that would end
-    sooner; the helper's group starts :data:`HELPER_START_SECONDS` late.
-    """
-    groups = ([], [])
-    totals = [0.0, HELPER_START_SECONDS]
-    for name in sorted(names, key=lambda n: -COMPILE_WEIGHTS.get(n, 1.0)):
-        side = 0 if totals[0] <= totals[1] else 1
-        groups[side].append(name)
-        totals[side] += COMPILE_WEIGHTS.get(name, 1.0)
-    return groups
-
-
-#: The helper's program: its path without the working directory (which
-#: ``-c`` puts first), with the folder this fastdet came from first unless
-#: the path has it already, then :func:`main`.
-_HELPER_CODE = ("import sys; sys.path[:] = [p for p in sys.path if p]; "
-                "sys.path.insert(0, sys.argv[1]) if sys.argv[1] not in sys.path else None; "
-                "from fastdet.kernels.warmup import main; sys.exit(main(sys.argv[2:]))")
-
-
-def _helper_process(names):
-    """A Python process compiling ``names`` into the same cache folder (the
-    cache module has put it in ``NUMBA_CACHE_DIR``, which the child inherits).
-
-    The child imports the same fastdet files as this process: Numba files a
-    kernel's cache entries under its source folder, so kernels compiled from
-    another copy (``python -m`` puts the working directory first, and run
-    from a checkout with fastdet installed that is the checkout's copy) would
-    be filed where this process never looks.
-    """
-    package_root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    return subprocess.Popen([sys.executable, "-c", _HELPER_CODE, package_root, *names],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
-
-
 def warm(names=DETECTION_FAMILIES, processes=None):
     """Compile or load the kernel families ``names``; returns seconds per family.
 
@@ -258,8 +207,11 @@ def warm(names=DETECTION_FAMILIES, processes=None):
     processes : int, optional
         With 2 or more and families still uncompiled (:func:`cold_families`),
         about half of those are compiled by a second Python process while
-        this one compiles the rest, then loaded here from the cache.
-        ``None``: 2 when there are two or more CPU cores.
+        this one compiles the rest, then loaded here from the cache.  The
+        ``fastdet`` command may have started that process already, before
+        its imports (:func:`fastdet.compile_ahead.start_early`); then its
+        families are the second process's share.  ``None``: 2 when there
+        are two or more CPU cores.
 
     Returns
     -------
@@ -274,11 +226,17 @@ def warm(names=DETECTION_FAMILIES, processes=None):
     if processes is None:
         processes = 2 if (os.cpu_count() or 1) > 1 else 1
     helper, remote = None, []
-    if processes > 1:
+    early = take_early(names) if processes > 1 else None
+    if early is not None:
+        helper, remote = early
+        log.info("compiling kernels in two processes: %s in a second one, started before "
+                 "fastdet's imports", ", ".join(remote))
+    elif processes > 1:
         cold = cold_families(names)
         if len(cold) > 1:
-            local, remote = split_families(cold)
-            helper = _helper_process(remote)
+            _, remote = split_families(cold)
+            helper = start_helper(remote)
+            log.info("compiling kernels in two processes: %s in a second one", ", ".join(remote))
     seconds = {}
     for name in sorted(names, key=lambda n: n in remote):
         if name in remote and helper is not None:

@@ -51,16 +51,6 @@ def test_detection_needs_nothing_the_warmup_did_not_load(data_dir, threads):
     assert result["new"] == [], result["new"]
 
 
-def test_split_families_balances_the_weights():
-    names = list(warmup.FAMILIES)
-    here, helper = warmup.split_families(names)
-    assert sorted(here + helper) == sorted(names)
-    weight = lambda group: sum(warmup.COMPILE_WEIGHTS[name] for name in group)  # noqa: E731
-    heaviest = max(warmup.COMPILE_WEIGHTS.values())
-    # The helper starts late by its start-up; the two groups end within one family.
-    assert abs(weight(here) - (weight(helper) + warmup.HELPER_START_SECONDS)) <= heaviest
-
-
 def test_unknown_family_is_refused():
     with pytest.raises(ValueError, match="unknown kernel families"):
         warmup.warm(["nonsense"])
