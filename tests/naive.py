@@ -333,3 +333,11 @@ def naive_refine_boxes(boxes, features, weights, frame_width):
                     cx + offsets[:, 2] * width, cy + offsets[:, 3] * height], axis=1)
     return np.concatenate([np.minimum(out[:, :2], out[:, 2:]), np.maximum(out[:, :2], out[:, 2:])],
                           axis=1)
+
+
+def naive_integer_chain(steps, seed):
+    """The clock probe's chain (fastdet.kernels.clock.integer_chain) in Python integers."""
+    x = seed % 2**64
+    for _ in range(steps):
+        x = ((x ^ (x >> 7)) + 1) % 2**64
+    return x
