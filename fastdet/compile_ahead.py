@@ -70,8 +70,8 @@ def split_families(names, helper_start=HELPER_START_SECONDS):
     """``(here, helper)``: ``names`` in two groups that finish as close together as can be.
 
     Every way of splitting the few families is tried (an exact partition of
-    :func:`group_seconds`; a greedy split of the weights left the two
-    processes up to 0.8 s apart), with the helper's group starting
+    :func:`group_seconds`; a greedy split of the weights left the helper
+    0.8-0.9 s behind on a cold detection), with the helper's group starting
     ``helper_start`` seconds late.  Ties go to the split with fewer families
     in the helper.  Each group lists its families heaviest first.
     """
