@@ -15,6 +15,7 @@ exact, how ids continue), :mod:`.merge` (segments joined), :mod:`.worker`
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import sys
 import time
@@ -27,17 +28,21 @@ from .inputs import find_videos
 from .report import write_report
 from .runner import BatchRun
 from .settings import make_settings
+from .worker import compile_for_local_workers
 
 __all__ = ["batch", "run_batch"]
 
 
 def run_batch(inputs, out_dir, client=None, *, scheduler=None, scheduler_file=None, workers=None,
               threads=None, segment=None, force=False, warmup=None, progress=False,
-              **run_options):
+              compile_notice=contextlib.nullcontext, **run_options):
     """Run a batch and return its :class:`~fastdet.batch.runner.BatchRun` (what the CLI reports).
 
-    See :func:`batch` for the parameters.  The run's ``wall`` attribute holds
-    its duration in seconds, cluster start included.
+    See :func:`batch` for the parameters; ``compile_notice`` is a context
+    manager factory wrapped around compiling a cold kernel cache before a
+    local cluster starts (:func:`~fastdet.batch.worker.compile_for_local_workers`).
+    The run's ``wall`` attribute holds its duration in seconds, cluster
+    start included.
     """
     start = time.perf_counter()
     if isinstance(inputs, (str, Path)):
@@ -49,6 +54,7 @@ def run_batch(inputs, out_dir, client=None, *, scheduler=None, scheduler_file=No
     if client is None and scheduler is None and scheduler_file is None:
         workers, threads = local_layout(len(videos), workers, threads, segment is not None)
         settings = dataclasses.replace(settings, threads=threads)
+        compile_for_local_workers(settings, compile_notice)
     with batch_client(out_dir, client, scheduler, scheduler_file, workers,
                       settings.threads) as dask:
         run = BatchRun(dask, settings, out_dir, force=force, segment=segment, warmup=warmup)

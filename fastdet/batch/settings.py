@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import tempfile
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -79,6 +80,13 @@ class BatchSettings:
             settings["encoder"] = self.encoder
         text = json.dumps(settings, sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+    def model(self):
+        """The model, loaded (and validated) from :attr:`model_bytes`."""
+        with tempfile.TemporaryDirectory(prefix="fastdet-model-") as folder:
+            path = Path(folder) / "model.npz"
+            path.write_bytes(self.model_bytes)
+            return load_model(path)
 
     @property
     def encoder(self):

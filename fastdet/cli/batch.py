@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 
 from ..video.detection_files import FORMATS
-from .common import add_encoder_options, add_schedule_options
+from .common import add_encoder_options, add_schedule_options, compile_notice
 
 #: Exit code when the batch ran but some videos failed.
 EXIT_SOME_FAILED = 1
@@ -68,7 +68,8 @@ def cmd_batch(args):
                     progress=not args.quiet and sys.stderr.isatty(), model=args.model,
                     config=args.config, every=args.every, track=args.track,
                     video=not args.no_video, detections=not args.no_detections,
-                    format=args.format, codec=args.codec, crf=args.crf, preset=args.preset)
+                    format=args.format, codec=args.codec, crf=args.crf, preset=args.preset,
+                    compile_notice=lambda: compile_notice(enabled=not args.quiet))
     print(summary_table(run.records, run.skipped, run.wall))
     print(f"{run.workers} workers, set up in {run.setup_seconds:.1f} s; manifest: "
           f"{run.manifest.path}; report: {run.manifest.path.parent / 'index.html'}", flush=True)

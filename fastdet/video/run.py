@@ -323,7 +323,8 @@ def process_video(source, target=None, detector=None, config=None, callback=None
             # between are only counted: those the codec allows stay undecoded.
             needed = (pipeline.frames_needed(video.start)
                       if sink is None and not realtime and not debug_view else None)
-            warm_up = getattr(pipeline.detector, "warm_up", None)
+            # The pipeline's kernels too (heat smoothing, tracking), not only the detector's.
+            warm_up = pipeline.warm_up if hasattr(pipeline.detector, "warm_up") else None
             warm_up_frame = video.first_frame     # taken before the decoder starts
             # The decoder starts while the kernels load.  Where it bounds the
             # run (frames left out), its queue holds more frames until the

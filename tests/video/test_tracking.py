@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from video_stubs import BlockDetector, background, moving_block, paint, texture
@@ -541,3 +545,31 @@ def test_default_smoothing_follows_a_moving_block_with_one_id():
         assert ids.tolist() == [1]
         # The smoothed heat lags the motion by a couple of frames.
         assert box_iou(boxes, [expected])[0, 0] > 0.6
+
+
+_WARM_UP_PROBE = r"""
+import json, sys
+import numpy as np
+import fastdet
+from fastdet.kernels import heat, patch
+frame = np.random.default_rng(0).integers(0, 256, (360, 640, 3), dtype=np.uint8)
+pipeline = fastdet.VideoPipeline(fastdet.Detector(threads=1),
+                                 fastdet.TrackConfig(tracking=sys.argv[1] == "track"))
+seconds = pipeline.warm_up(frame)
+print(json.dumps({"smoothing": bool(heat.decay_heat.signatures),
+                  "tracking": bool(patch.grey_thumbnail.signatures),
+                  "frames": pipeline.frames, "seconds": seconds}))
+"""
+
+
+@pytest.mark.parametrize("mode", ["default", "track"])
+def test_warm_up_loads_the_pipelines_own_kernels(mode):
+    """In a fresh process: the warm-up loads the heat smoothing's kernel (and the
+    tracker's with tracking), so a run's first frame waits for none; the pipeline
+    itself has processed nothing."""
+    done = subprocess.run([sys.executable, "-c", _WARM_UP_PROBE, mode], capture_output=True,
+                          text=True, timeout=900)
+    assert done.returncode == 0, done.stderr[-3000:]
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["smoothing"] and result["frames"] == 0 and result["seconds"] > 0
+    assert result["tracking"] == (mode == "track")
