@@ -28,9 +28,9 @@ from ._version import __version__
 #: compiles (:mod:`fastdet.kernels.compile_gc`) and no reshape or
 #: integer-power implementations compiled.  :func:`split_families` balances
 #: two processes with these weights.
-COMPILE_WEIGHTS = {"label": 4.2, "track": 3.7, "split": 3.35, "hog_api": 2.8, "score": 2.5,
+COMPILE_WEIGHTS = {"label": 4.2, "track": 3.5, "split": 3.35, "hog_api": 2.8, "score": 2.5,
                    "hog": 1.8, "colour": 1.7, "heat": 1.5, "resize": 1.45, "refine": 1.45,
-                   "convert": 0.75}
+                   "convert": 0.75, "smooth": 0.45}
 
 #: The families every detection with the default feature options runs.
 DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "heat", "label", "refine")

@@ -119,8 +119,10 @@ def compile_for_local_workers(settings, notice=contextlib.nullcontext):
         Seconds it took (0.0 with the detection's kernels cached).
     """
     model = settings.model()
-    # The video pipeline's own kernels (heat smoothing, patch tracking) too.
-    families = [*kernel_families(model.options), "track"]
+    # The video pipeline's own kernels too: heat smoothing, and patch tracking if asked for.
+    families = [*kernel_families(model.options), "smooth"]
+    if settings.track_config.tracking:
+        families.append("track")
     if not cold_families(families):
         return 0.0
     start = time.perf_counter()

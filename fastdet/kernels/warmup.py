@@ -121,13 +121,15 @@ def _warm_split():
     split_component(np.ascontiguousarray(heat), mask, split, 4, 4, 8)
 
 
-def _warm_track():
+def _warm_smooth():
     from .heat import decay_heat
-    from .patch import (grey_thumbnail, mask_overlap_search, saturation_mask,
-                        sum_squared_difference)
-    # The video pipeline's heat smoothing, then its patch tracking.
     decay_heat(np.zeros((6, 8), np.float32), np.ones((2, 3), np.float32), 1, 2,
                np.float32(0.75), np.float32(0.25))
+
+
+def _warm_track():
+    from .patch import (grey_thumbnail, mask_overlap_search, saturation_mask,
+                        sum_squared_difference)
     patch = np.ascontiguousarray(_frame_band(16, 16))
     mask = saturation_mask(patch, 100)
     mask_overlap_search(mask, mask, (8, 8), 2, 1)
@@ -146,12 +148,13 @@ def _warm_hog_api():
 #: (heat_blobs); "refine" the box refinement of the default config (a family
 #: of its own, so that a cold compile can put it in the other process than
 #: "label", the heaviest); "split" the full-resolution split of a blob
-#: holding two cars; "track" the video pipeline's own kernels (heat
-#: smoothing, patch tracking).
+#: holding two cars; "smooth" the video pipeline's heat smoothing (every
+#: default run) and "track" its patch tracking (``--track`` only: 3.3 s of
+#: compile against 0.4 s, so the two are apart).
 FAMILIES = {"convert": _warm_convert, "resize": _warm_resize, "hog": _warm_hog,
             "score": _warm_score, "colour": _warm_colour, "heat": _warm_heat,
             "label": _warm_label, "refine": _warm_refine, "split": _warm_split,
-            "track": _warm_track, "hog_api": _warm_hog_api}
+            "smooth": _warm_smooth, "track": _warm_track, "hog_api": _warm_hog_api}
 
 #: One dispatcher per family whose cache entry tells whether the family was
 #: compiled before (see :func:`cold_families`): module, name.
@@ -160,6 +163,7 @@ _PROBES = {"convert": ("convert", "_bgr_to_hls"), "resize": ("resize", "_resize"
            "colour": ("colour", "_colour_maps"), "heat": ("heat", "box_heat_region"),
            "label": ("label", "heat_blobs"), "refine": ("refine", "box_heat_features"),
            "split": ("label", "split_component"),
+           "smooth": ("heat", "decay_heat"),
            "track": ("patch", "mask_overlap_search"),
            "hog_api": ("blocks", "_normalize_serial")}
 
