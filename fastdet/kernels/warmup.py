@@ -149,8 +149,8 @@ def _warm_hog_api():
 #: of its own, so that a cold compile can put it in the other process than
 #: "label", the heaviest); "split" the full-resolution split of a blob
 #: holding two cars; "smooth" the video pipeline's heat smoothing (every
-#: default run) and "track" its patch tracking (``--track`` only: 3.3 s of
-#: compile against 0.4 s, so the two are apart).
+#: default run) and "track" its patch tracking (``--track`` only: 3.5 s of
+#: compile against 0.45 s, so the two are apart).
 FAMILIES = {"convert": _warm_convert, "resize": _warm_resize, "hog": _warm_hog,
             "score": _warm_score, "colour": _warm_colour, "heat": _warm_heat,
             "label": _warm_label, "refine": _warm_refine, "split": _warm_split,
