@@ -142,10 +142,9 @@ class _ThumbnailTap:
 
 
 def warm_up(detector, track_config, frame):
-    """Run the pipeline twice on ``frame``: loads (or compiles) every kernel a video job calls."""
-    pipeline = VideoPipeline(_HeatWatch(detector), track_config)
-    for _ in range(2):
-        pipeline.process(frame)
+    """Load (or compile) every kernel a video job calls: the pipeline's warm-up, through
+    the heat watch the jobs detect with (see :meth:`VideoPipeline.warm_up`)."""
+    VideoPipeline(_HeatWatch(detector), track_config).warm_up(frame)
 
 
 def process_one(input_path, outputs, options, frame_range=None, warmup_frames=0, *,

@@ -98,7 +98,8 @@ def _track_video(args, video, annotations, cover):
     from ..video.evaluate import track_annotated_frames
 
     pipeline = make_pipeline(args)
-    warm_up = getattr(pipeline.detector, "warm_up", None)
+    # The pipeline's kernels too (heat smoothing, tracking), as fastdet run warms up.
+    warm_up = pipeline.warm_up if hasattr(pipeline.detector, "warm_up") else None
     if warm_up is not None:
         with compile_notice():
             warm_up(_first_frame(video))
