@@ -659,6 +659,16 @@ def _output(out, shape, dtype=np.float32):
 # With AVX-512 the shuffle tree instead of per-bin reductions changed little
 # (1.77-1.84 -> 1.69-1.73 ms): the row loop dominates.
 #
+# Without AVX-512 that loop is bound by latency, not by its instructions
+# (AMD EPYC, Zen 3): llvm-mca -mcpu=znver3 finds its 4-port throughput at 9.5
+# cycles per 8 lanes but simulates 19, the floating-point scheduler (64
+# entries) full in 80 % of cycles with operations waiting on each row's
+# loads, conversions and square root; the same loop in C took 19.5 cycles.
+# Computing the whole group's gradients first, into a 6 KB stack buffer, and
+# then each piece's sums from it (two_pass) took 15.1 cycles in C; in the
+# kernel, the detector's cells 1.67-1.69 ms a frame against 1.91 (8 lanes)
+# and 6.1 against 7.25 ms (4 lanes, NUMBA_CPU_NAME=generic), bit-identical.
+#
 # The bin comes from a rule, not the table: with ax = |gx|, ay = |gy| and
 # t_k = float32(tan(k * 180 / nbins deg)), k' = number of k (1 .. nbins // 2)
 # with ay >= float32(ax * t_k); the bin is nbins - 1 - k' if gx * gy < 0, else
@@ -677,6 +687,9 @@ _LANES = 16 if HAVE_AVX512F else 8 if HAVE_AVX2 else 4
 #: Masked adds as an AND of the value, then an add (see the block's
 #: masked_add): where there is no AVX-512 masked add.
 _MASK_THEN_ADD = not HAVE_AVX512F
+#: Gradients of the whole group first, then the sums (see the block's
+#: two_pass): where there is no AVX-512.
+_TWO_PASS = not HAVE_AVX512F
 
 
 def _fast_thresholds(nbins):
@@ -812,7 +825,7 @@ def _reduction_plan(lanes, channels, ppc_x, nbins):
 
 
 def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,
-                 mask_then_add=_MASK_THEN_ADD):
+                 mask_then_add=_MASK_THEN_ADD, two_pass=_TWO_PASS):
     """An intrinsic ``block(flat, height, row_bytes, y0, x0, scratch)``.
 
     Adds up, for the _GROUP_CELLS cells whose elements start at flat-row offset
@@ -822,7 +835,9 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,
     ``_reduction_plan(lanes, channels, ppc_x, nbins)``.  ``first``: the group
     starts at the row's first pixel (gx = 0 there, nothing read before it);
     ``last``: it ends with the row's last pixel.  Otherwise the block reads
-    ``channels`` bytes either side of the group.
+    ``channels`` bytes either side of the group.  ``two_pass``: the group's
+    gradients go through a stack buffer before they are summed (same sums,
+    bit for bit; see the comment at ``if two_pass``).
     """
     group = _GROUP_CELLS * ppc_x * channels
     assert group % lanes == 0 and channels < lanes
@@ -877,29 +892,24 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,
         # pixels, each over all pixels and over those past each threshold.
         middle = len(thresholds)
         sums = [[] for _ in range(2 * (middle + 1))]
-        for piece in range(pieces):
-            head = first and piece == 0
-            tail = last and piece == pieces - 1
-            # One loop over the cell row's image rows; the accumulators are phis.
-            before = builder.block
-            loop = builder.append_basic_block(f"piece{piece}")
-            after = builder.append_basic_block(f"piece{piece}_done")
-            builder.branch(loop)
-            builder.position_at_end(loop)
-            r = builder.phi(i64)
-            r.add_incoming(zero64, before)
-            phis = []
-            for _ in range(len(sums)):
-                phi = builder.phi(floats_t)
-                phi.add_incoming(zero_f, before)
-                phis.append(phi)
+
+        def row_start(r):
+            """Flat offset of the group in image row y0 + r, and the step to
+            the rows above and below (0 on the image's first and last rows)."""
             y = builder.add(y0, r)
             interior = builder.and_(builder.icmp_signed(">", y, zero64),
                                     builder.icmp_signed("<", y, last_row))
-            shift = ir.Constant(i64, piece * lanes)
-            base = builder.add(builder.add(builder.mul(y, row_bytes), x0), shift)
-            up = builder.sub(base, builder.select(interior, row_bytes, zero64))
-            down = builder.add(base, builder.select(interior, row_bytes, zero64))
+            return (builder.add(builder.mul(y, row_bytes), x0),
+                    builder.select(interior, row_bytes, zero64))
+
+        def gradients(piece, start, step):
+            """``|gx|``, ``|gy|`` and the magnitude of acute and of obtuse
+            elements (0 for the others) of one piece in one row."""
+            head = first and piece == 0
+            tail = last and piece == pieces - 1
+            base = builder.add(start, ir.Constant(i64, piece * lanes))
+            up = builder.sub(base, step)
+            down = builder.add(base, step)
             here = load(base) if head or tail else None
             if head:
                 left = builder.shuffle_vector(here, undef_b, ir.Constant(
@@ -922,13 +932,14 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,
             fy = builder.sitofp(gy, floats_t)
             # Exact: gx * gx + gy * gy < 2**24.
             magnitude = builder.call(sqrt, [builder.call(fma, [fx, fx, builder.fmul(fy, fy)])])
-            ax = builder.call(fabs, [fx])
-            ay = builder.call(fabs, [fy])
             # gx * gy is exact; a zero product (gx = 0 or gy = 0) counts as
             # not obtuse, which changes nothing for gx = 0: k is the middle bin.
             obtuse = builder.fcmp_ordered("<", builder.fmul(fx, fy), zero_f)
-            acute_mag = builder.select(obtuse, zero_f, magnitude)
-            obtuse_mag = builder.select(obtuse, magnitude, zero_f)
+            return (builder.call(fabs, [fx]), builder.call(fabs, [fy]),
+                    builder.select(obtuse, zero_f, magnitude),
+                    builder.select(obtuse, magnitude, zero_f))
+
+        def accumulate(phis, ax, ay, acute_mag, obtuse_mag):
             # The threshold conditions are nested (monotone in k), so summing
             # each side's magnitudes past every threshold gives the bins as
             # differences later: two masked adds per threshold instead of a
@@ -939,15 +950,75 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,
                 past = builder.fcmp_ordered(">=", ay, builder.fmul(ax, splat(t, floats_t)))
                 acute.append(masked_add(past, phis[count], acute_mag))
                 obtuse_sums.append(masked_add(past, phis[middle + 1 + count], obtuse_mag))
-            acc = acute + obtuse_sums
+            return acute + obtuse_sums
+
+        def row_loop(name, body, phi_count=0, launder=False):
+            """``body(r, phis)`` for r = 0 .. ppc_y - 1; returns its last values."""
+            before = builder.block
+            loop = builder.append_basic_block(name)
+            after = builder.append_basic_block(f"{name}_done")
+            builder.branch(loop)
+            builder.position_at_end(loop)
+            r = builder.phi(i64)
+            r.add_incoming(zero64, before)
+            phis = []
+            for _ in range(phi_count):
+                phi = builder.phi(floats_t)
+                phi.add_incoming(zero_f, before)
+                phis.append(phi)
+            values = body(r, phis)
             r_next = builder.add(r, one)
             r.add_incoming(r_next, builder.block)
-            for phi, value in zip(phis, acc):
+            for phi, value in zip(phis, values):
                 phi.add_incoming(value, builder.block)
-            builder.cbranch(builder.icmp_signed("<", r_next, ir.Constant(i64, ppc_y)), loop, after)
+            bound = ir.Constant(i64, ppc_y)
+            # ``launder``: hide the constant trip count behind an empty asm,
+            # so that LLVM keeps the loop.  Unrolled, the two-pass block's
+            # eight-row sum loops became one long block that reloads its
+            # thresholds and took 5.0 ms a frame against 4.2 (AMD EPYC, AVX2).
+            if launder:
+                bound = builder.asm(ir.FunctionType(i64, [i64]), "", "=r,0", [bound],
+                                    side_effect=False)
+            builder.cbranch(builder.icmp_signed("<", r_next, bound), loop, after)
             builder.position_at_end(after)
-            for total, value in zip(sums, acc):
-                total.append(value)
+            return values
+
+        if two_pass:
+            # First every piece's gradients over the cell row's image rows,
+            # into a stack buffer (6 KB, in L1), then each piece's sums from
+            # it: the same operations on the same values, in the same order
+            # per lane.  In one pass the sums wait on the loads, conversions
+            # and square root of each row, and those waiting operations fill
+            # the core's floating-point scheduler (Zen 3: 64 entries) before
+            # the next rows' loads can start.
+            kinds = 4
+            stash = cgutils.alloca_once(builder, ir.ArrayType(floats_t, pieces * ppc_y * kinds))
+
+            def slot(piece, r, kind):
+                index = builder.add(builder.mul(r, ir.Constant(i64, kinds)),
+                                    ir.Constant(i64, piece * ppc_y * kinds + kind))
+                return builder.gep(stash, [zero64, index], inbounds=True)
+
+            def gradient_row(r, _):
+                start, step = row_start(r)
+                for piece in range(pieces):
+                    for kind, value in enumerate(gradients(piece, start, step)):
+                        builder.store(value, slot(piece, r, kind), align=4 * lanes)
+                return []
+
+            row_loop("gradients", gradient_row)
+            for piece in range(pieces):
+                acc = row_loop(f"sums{piece}", lambda r, phis, piece=piece: accumulate(
+                    phis, *[builder.load(slot(piece, r, kind), align=4 * lanes)
+                            for kind in range(kinds)]), len(sums), launder=True)
+                for total, value in zip(sums, acc):
+                    total.append(value)
+        else:
+            for piece in range(pieces):
+                acc = row_loop(f"piece{piece}", lambda r, phis, piece=piece: accumulate(
+                    phis, *gradients(piece, *row_start(r))), len(sums))
+                for total, value in zip(sums, acc):
+                    total.append(value)
 
         # Per lane, bin k < middle holds the acute pixels past threshold k but
         # not k + 1, bin nbins - 1 - k the obtuse ones, the middle bin both

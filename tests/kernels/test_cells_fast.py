@@ -194,3 +194,50 @@ def test_the_orientation_table_is_kept_beside_the_kernels(tmp_path, monkeypatch)
     np.savez(saved, lut=flipped, sha256=np.load(saved)["sha256"])
     np.testing.assert_array_equal(hog._bin_lut.__wrapped__(9), expected)
     np.testing.assert_array_equal(np.load(saved)["lut"], expected)
+
+
+def _block_kernel(channels, first, last, lanes, mask_then_add, two_pass):
+    """A jitted call of one group block variant (no cache: test-only variants)."""
+    from numba import njit
+
+    block = hog._group_block(channels, 8, 8, 9, first, last, lanes=lanes,
+                             mask_then_add=mask_then_add, two_pass=two_pass)
+
+    @njit
+    def run(flat, height, row_bytes, y0, x0, scratch):
+        block(flat, height, row_bytes, y0, x0, scratch)
+
+    return run
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+@pytest.mark.parametrize("lanes, mask_then_add", [(4, True), (8, True), (16, False)])
+def test_every_block_variant_gives_the_naive_cells_and_both_orders_agree(channels, lanes,
+                                                                         mask_then_add):
+    """The block in one pass (AVX-512 machines) and in two passes (the others),
+    at each lane width, whatever this CPU runs natively.
+
+    The image is 2 groups wide and 3 cell rows tall, so the blocks see the
+    first and last image rows and columns (``first`` / ``last`` variants)."""
+    rng = np.random.default_rng(channels * 100 + lanes)
+    group = hog._GROUP_CELLS * 8
+    image = rng.integers(0, 256, (24, 2 * group, channels), dtype=np.uint8)
+    image[8:12] = np.where(rng.random((4, 2 * group, channels)) < 0.5, 0, 255)
+    expected = naive_cell_histograms(image, (8, 8), 9).astype(np.float32)
+    plan = hog._reduction_plan(lanes, channels, 8, 9)
+    flat, row_bytes = image.ravel(), 2 * group * channels
+    for first, last, x_group in ((True, False, 0), (False, True, 1)):
+        got = {}
+        for two_pass in (False, True):
+            run = _block_kernel(channels, first, last, lanes, mask_then_add, two_pass)
+            cells = np.empty((3, hog._GROUP_CELLS, channels, 9), np.float32)
+            for cell_row in range(3):
+                scratch = np.full(plan.size, np.nan, np.float32)
+                run(flat, 24, row_bytes, cell_row * 8, x_group * group * channels, scratch)
+                # scratch[index[(b * cells + cell) * channels + c]]: the mean of bin b.
+                means = scratch[plan.index].reshape(9, hog._GROUP_CELLS, channels)
+                cells[cell_row] = means.transpose(1, 2, 0)
+            got[two_pass] = cells
+            columns = slice(x_group * hog._GROUP_CELLS, (x_group + 1) * hog._GROUP_CELLS)
+            assert_close(cells, expected[:, columns])
+        np.testing.assert_array_equal(got[True], got[False])
