@@ -10,10 +10,13 @@ so only the run is timed.
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
 from fastdet.kernels.blocks import normalize_blocks
+from fastdet.kernels import hog
 from fastdet.kernels.heat import accumulate_heat
 from fastdet.kernels.hog import cell_histograms
 from fastdet.kernels.label import component_boxes, label_components
@@ -55,6 +58,48 @@ class GradientHistograms:
     def time_cell_histograms(self, label, parallel):
         cell_histograms(self.image, PIXELS_PER_CELL, ORIENTATIONS, parallel=parallel,
                         out=self.out)
+
+
+@functools.lru_cache(maxsize=None)
+def _group_blocks_over_image(two_pass):
+    """A jitted walk of the cell kernel's interior group block (this CPU's lanes
+    and masked-add form) over every interior group of an image, in one or two
+    passes.  Not cached on disk: a variant the CPU does not use by default
+    only exists here."""
+    from numba import njit
+
+    block = hog._group_block(3, 8, 8, ORIENTATIONS, False, False, two_pass=two_pass)
+    group = hog._GROUP_CELLS * 8 * 3
+
+    @njit(nogil=True)
+    def walk(flat, height, row_bytes, scratch):
+        for y0 in range(0, height - 7, 8):
+            for x0 in range(group, row_bytes - 2 * group + 1, group):
+                block(flat, height, row_bytes, y0, x0, scratch)
+
+    return walk
+
+
+class CellBlockOrders:
+    """The cell kernel's group block in one pass and in two (gradients first).
+
+    The kernel takes two passes without AVX-512 and one with it; this times
+    both on the machine at hand, so that the choice can be checked on every
+    CPU (the two give the same sums, bit for bit)."""
+
+    params = (["1280x720"], [False, True])
+    param_names = ("frame_size", "two_pass")
+
+    def setup(self, label, two_pass):
+        image = hls_image(label)
+        self.args = (image.ravel(), image.shape[0], image.shape[1] * 3,
+                     np.empty(hog._reduction_plan(hog._LANES, 3, 8, ORIENTATIONS).size,
+                              np.float32))
+        self.walk = _group_blocks_over_image(two_pass)
+        self.walk(*self.args)
+
+    def time_group_blocks(self, label, two_pass):
+        self.walk(*self.args)
 
 
 class BlockNormalisation:
