@@ -994,6 +994,8 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,
             # the next rows' loads can start.
             kinds = 4
             stash = cgutils.alloca_once(builder, ir.ArrayType(floats_t, pieces * ppc_y * kinds))
+            # The aligned loads and stores below rely on it.
+            stash.align = 4 * lanes
 
             def slot(piece, r, kind):
                 index = builder.add(builder.mul(r, ir.Constant(i64, kinds)),
