@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from fastdet.kernels.blocks import normalize_blocks
-from fastdet.kernels import hog
+from fastdet.kernels import colour, hog
 from fastdet.kernels.heat import accumulate_heat
 from fastdet.kernels.hog import cell_histograms
 from fastdet.kernels.label import component_boxes, label_components
@@ -100,6 +100,32 @@ class CellBlockOrders:
 
     def time_group_blocks(self, label, two_pass):
         self.walk(*self.args)
+
+
+class ColourTileSums:
+    """The colour histogram's tile sums over a whole HLS frame (tiles of 16).
+
+    ``vector`` is the bin-table path this CPU's kernels have (AVX-512BW or
+    AVX2; the detector's lut has 32 bins), ``scalar`` the per-pixel lookups
+    that serve any lut (and CPUs with neither)."""
+
+    params = (["1280x720"], ["vector", "scalar"])
+    param_names = ("frame_size", "path")
+
+    def setup(self, label, path):
+        self.image = hls_image(label)
+        weights = np.random.default_rng(0).normal(size=(3, 32)).astype(np.float32)
+        self.lut = np.ascontiguousarray(weights[:, np.arange(256) // 8])
+        height, width = self.image.shape[:2]
+        self.tiles = np.empty((height // 16, width // 16), np.float32)
+        self.box = np.empty((0, 0, 3), np.float32)
+        self.table = colour.bin_table(self.lut)
+        self.path = colour.TILE_PATH if path == "vector" else colour.PATH_SCALAR
+        self.time_tile_sums(label, path)
+
+    def time_tile_sums(self, label, path):
+        colour._colour_maps(self.path, self.image, self.lut, self.table, 16, 0, True, False,
+                            self.tiles, self.box)
 
 
 class BlockNormalisation:

@@ -271,6 +271,34 @@ def naive_tile_weight_sums(image, lut, tile):
     return out
 
 
+def naive_bin_order_tile_sums(image, lut, tile):
+    """The bin-table paths' tile sums, in their float32 order (both give these bits).
+
+    Per pixel ``(lut[0, v0] + lut[1, v1]) + lut[2, v2]`` in float32; per column
+    of a tile row the pixels' weights added row by row from 0; per tile its
+    columns added left to right from 0.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 array of shape ``(H // tile, W // tile)``.
+    """
+    lut = np.asarray(lut, dtype=np.float32)
+    weight = (lut[0][image[:, :, 0]] + lut[1][image[:, :, 1]]) + lut[2][image[:, :, 2]]
+    ty, tx = image.shape[0] // tile, image.shape[1] // tile
+    out = np.zeros((ty, tx), dtype=np.float32)
+    for y in range(ty):
+        columns = np.zeros(tx * tile, dtype=np.float32)
+        for dy in range(tile):
+            columns = columns + weight[y * tile + dy, :tx * tile]
+        for x in range(tx):
+            total = np.float32(0.0)
+            for dx in range(tile):
+                total = np.float32(total + columns[x * tile + dx])
+            out[y, x] = total
+    return out
+
+
 def naive_heat_features(heat, origin, boxes, threshold, frame_size, levels=(1 / 3, 2 / 3)):
     """The box refinement's features (fastdet.detector.refine.heat_features)
     with NumPy array operations, box by box."""

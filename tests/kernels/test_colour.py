@@ -11,12 +11,14 @@ four-pixel tile path (tile a multiple of 4) and the per-pixel one (other
 tiles), images smaller than a tile or a box cell, and tile rows and box rows
 that end at different image rows.
 
-Tile sums have two paths, both checked (the ``path`` fixture): the AVX-512
-bin-table path, taken when each channel's lut is constant on aligned runs of 8
-values (the detector's lut for 32 bins or fewer), and the per-pixel table
-lookups for any lut.  Luts of both kinds are used, and 16-pixel vector blocks
-with tails of whole tiles after them (and the bottom tile row's last block,
-which would read past the image).
+Tile sums have three paths, each checked where the CPU has it (the ``path``
+fixture): the bin-table paths (AVX-512BW, else AVX2), taken when each
+channel's lut is constant on aligned runs of 8 values (the detector's lut for
+32 bins or fewer), and the per-pixel table lookups for any lut.  Luts of both
+kinds are used, and vector blocks (16 pixels with AVX-512, 32 with AVX2) with
+tails of whole tiles after them (and, with AVX-512, the bottom tile row's last
+block, which would read past the image).  The bin-table paths add in one
+order, checked bit for bit (``naive_bin_order_tile_sums``).
 """
 
 from __future__ import annotations
@@ -31,18 +33,21 @@ import numpy as np
 import pytest
 
 import fastdet.kernels.colour as colour_module
-from fastdet.kernels.colour import PATH_AVX512, PATH_SCALAR, _colour_maps, colour_maps
+from fastdet.kernels.colour import PATH_AVX2, PATH_AVX512, PATH_SCALAR, _colour_maps, colour_maps
+from naive import naive_bin_order_tile_sums
 
-#: The tile-sum paths this machine can run: every one is checked.
-PATHS = [name for name, usable in (("avx512", colour_module.HAVE_AVX512BW),
-                                   ("scalar", True)) if usable]
+#: The tile-sum paths this machine's kernels have: every one is checked.
+PATHS = {name: code for name, code, usable in (
+    ("avx512", PATH_AVX512, colour_module.TILE_PATH == PATH_AVX512),
+    ("avx2", PATH_AVX2, colour_module.TILE_PATH == PATH_AVX2),
+    ("scalar", PATH_SCALAR, True)) if usable}
 
 
-@pytest.fixture(params=PATHS)
+@pytest.fixture(params=list(PATHS))
 def path(request, monkeypatch):
-    """Run the test with one tile-sum path allowed; the path's kernel code."""
-    monkeypatch.setattr(colour_module, "HAVE_AVX512BW", request.param == "avx512")
-    return PATH_AVX512 if request.param == "avx512" else PATH_SCALAR
+    """Run the test with one tile-sum path asked for; the path's kernel code."""
+    monkeypatch.setattr(colour_module, "TILE_PATH", PATHS[request.param])
+    return PATHS[request.param]
 
 
 def reference_tiles(image, lut, tile):
@@ -103,12 +108,24 @@ def make_lut(kind, rng):
     return random_lut(rng) if kind == "random" else binned_lut(rng, int(kind[4:]))
 
 
-def tile_path(image, lut, tile, factor, path):
-    """The tile-sum path _colour_maps takes when allowed ``path``."""
-    tiles = np.empty((image.shape[0] // tile, image.shape[1] // tile), np.float32)
-    box = np.empty((image.shape[0] // factor, image.shape[1] // factor, 3) if factor
-                   else (0, 0, 3), np.float32)
-    return _colour_maps(path, image, lut, tile, factor, True, factor > 0, tiles, box)
+def tile_path(monkeypatch, image, lut, tile, factor, asked):
+    """The tile-sum path colour_maps takes for ``lut`` when it asks for ``asked``."""
+    taken = []
+    kernel = colour_module._colour_maps
+    with monkeypatch.context() as patch:
+        patch.setattr(colour_module, "TILE_PATH", asked)
+        patch.setattr(colour_module, "_colour_maps", lambda *args: taken.append(kernel(*args)))
+        colour_maps(image, lut, tile, factor)
+    return taken[0]
+
+
+def kernel_maps(path, image, lut, tile, factor, tiles, box):
+    """_colour_maps as ColourMapRows calls it: the vector path only for a lut with a bin table."""
+    lut = np.ascontiguousarray(lut, np.float32)
+    table = colour_module.bin_table(lut)
+    if table is None:
+        path, table = PATH_SCALAR, np.zeros(96, np.float32)
+    return _colour_maps(path, image, lut, table, tile, factor, True, factor > 0, tiles, box)
 
 
 SHAPES = [
@@ -147,26 +164,54 @@ def test_every_lut_kind_and_tile(path, kind, tile):
         check(image, make_lut(kind, rng), tile, 2)
 
 
-def test_bin_table_path_is_taken_only_for_binned_luts():
-    """The vector path is taken exactly for luts constant on aligned runs of 8
-    values (where the CPU has it); any other lut, or the scalar path asked
-    for, gives the scalar path."""
+@pytest.mark.parametrize("asked", [PATH_AVX512, PATH_AVX2])
+def test_bin_table_path_is_taken_only_for_binned_luts(monkeypatch, asked):
+    """A vector path is taken exactly for luts constant on aligned runs of 8
+    values, and only the one this CPU's kernels have; any other lut, a path
+    the CPU lacks, or the scalar path asked for, gives the scalar path."""
     rng = np.random.default_rng(5)
     image = rng.integers(0, 256, (40, 100, 3), dtype=np.uint8)
-    vector = PATH_AVX512 if colour_module.HAVE_AVX512BW else PATH_SCALAR
+    vector = asked if colour_module.TILE_PATH == asked else PATH_SCALAR
     for bins in BINNED + [2, 4]:
-        assert tile_path(image, binned_lut(rng, bins), 8, 2, PATH_AVX512) == vector
-        assert tile_path(image, binned_lut(rng, bins), 8, 2, PATH_SCALAR) == PATH_SCALAR
+        lut = binned_lut(rng, bins)
+        np.testing.assert_array_equal(colour_module.bin_table(lut),
+                                      lut[:, ::8].reshape(-1))
+        assert tile_path(monkeypatch, image, lut, 8, 2, asked) == vector
+        assert tile_path(monkeypatch, image, lut, 8, 2, PATH_SCALAR) == PATH_SCALAR
     for bins in NOT_BINNED:
-        assert tile_path(image, binned_lut(rng, bins), 8, 2, PATH_AVX512) == PATH_SCALAR
-    assert tile_path(image, random_lut(rng), 16, 0, PATH_AVX512) == PATH_SCALAR
+        assert colour_module.bin_table(binned_lut(rng, bins)) is None
+        assert tile_path(monkeypatch, image, binned_lut(rng, bins), 8, 2, asked) == PATH_SCALAR
+    assert tile_path(monkeypatch, image, random_lut(rng), 16, 0, asked) == PATH_SCALAR
     for c, v in [(0, 1), (1, 255), (2, 100)]:     # one value off its run
         lut = binned_lut(rng)
         lut[c, v] += 1
-        assert tile_path(image, lut, 8, 2, PATH_AVX512) == PATH_SCALAR
+        assert colour_module.bin_table(lut) is None
+        assert tile_path(monkeypatch, image, lut, 8, 2, asked) == PATH_SCALAR
     lut = binned_lut(rng)
     lut[1, 77] = np.nan                             # NaN equals nothing: scalar
-    assert tile_path(image, lut, 8, 2, PATH_AVX512) == PATH_SCALAR
+    assert colour_module.bin_table(lut) is None
+    assert tile_path(monkeypatch, image, lut, 8, 2, asked) == PATH_SCALAR
+    # The kernel itself: a path whose instructions the CPU lacks is pruned.
+    lut = binned_lut(rng)
+    tiles = np.empty((5, 12), np.float32)
+    box = np.empty((20, 50, 3), np.float32)
+    assert kernel_maps(asked, image, lut, 8, 2, tiles, box) == vector
+
+
+@pytest.mark.parametrize("vector", [code for code in PATHS.values() if code != PATH_SCALAR])
+@pytest.mark.parametrize("shape", [(16, 32), (37, 131), (48, 100), (70, 251), (33, 1344)])
+@pytest.mark.parametrize("tile", [1, 4, 5, 8, 16, 32, 64])
+def test_bin_table_paths_add_in_their_documented_order(monkeypatch, vector, shape, tile):
+    """The vector paths' sums are the float32 sums of naive_bin_order_tile_sums,
+    bit for bit (so the AVX-512 and AVX2 paths agree); whole vector blocks and
+    tails of single columns both.  (The per-pixel lookups add in an order of
+    their own.)"""
+    monkeypatch.setattr(colour_module, "TILE_PATH", vector)
+    rng = np.random.default_rng(shape[1] * 7 + tile)
+    image = rng.integers(0, 256, shape + (3,), dtype=np.uint8)
+    lut = binned_lut(rng)
+    tiles, _ = colour_maps(image, lut, tile, 0)
+    np.testing.assert_array_equal(tiles, naive_bin_order_tile_sums(image, lut, tile))
 
 
 def test_colour_maps_takes_the_vector_path(monkeypatch):
@@ -181,40 +226,42 @@ def test_colour_maps_takes_the_vector_path(monkeypatch):
     image = rng.integers(0, 256, (32, 64, 3), dtype=np.uint8)
     colour_maps(image, binned_lut(rng), 16, 2)
     colour_maps(image, random_lut(rng), 16, 2)
-    vector = PATH_AVX512 if colour_module.HAVE_AVX512BW else PATH_SCALAR
-    assert taken == [vector, PATH_SCALAR]
+    assert taken == [colour_module.TILE_PATH, PATH_SCALAR]
 
 
-def test_portable_target_uses_the_scalar_path(tmp_path):
-    """Compiled for a CPU without AVX-512 (NUMBA_CPU_NAME=haswell with an empty
-    NUMBA_CPU_FEATURES: Haswell's own features; with the variable unset Numba
-    would add the host's), the vector branch is pruned: the scalar path runs,
-    with the same results."""
+def test_haswell_target_takes_the_avx2_path(tmp_path):
+    """Compiled for a CPU with AVX2 and no AVX-512 (NUMBA_CPU_NAME=haswell with
+    an empty NUMBA_CPU_FEATURES: Haswell's own features; with the variable
+    unset Numba would add the host's), the AVX-512 branch is pruned: asked
+    for, it gives the scalar path; the AVX2 path runs and adds in the bin
+    paths' order."""
     script = textwrap.dedent("""
+        import sys
         import numpy as np
         import fastdet.kernels.colour as colour
-        assert not colour.HAVE_AVX512BW
+        assert not colour.HAVE_AVX512BW and colour.TILE_PATH == colour.PATH_AVX2
         rng = np.random.default_rng(1)
         image = rng.integers(0, 256, (37, 131, 3), dtype=np.uint8)
         lut = np.ascontiguousarray(rng.normal(size=(3, 32)).astype(np.float32)[
             :, np.arange(256) // 8])
         tiles = np.empty((37 // 8, 131 // 8), np.float32)
         box = np.empty((18, 65, 3), np.float32)
-        path = colour._colour_maps(colour.PATH_AVX512, image, lut, 8, 2, True, True, tiles, box)
-        assert path == colour.PATH_SCALAR, path
-        np.save(__import__("sys").argv[1], tiles)
+        table = colour.bin_table(lut)
+        for asked, taken in ((colour.PATH_AVX512, colour.PATH_SCALAR),
+                             (colour.PATH_AVX2, colour.PATH_AVX2)):
+            path = colour._colour_maps(asked, image, lut, table, 8, 2, True, True, tiles, box)
+            assert path == taken, (asked, path)
+        np.save(sys.argv[1], tiles)
     """)
     environment = dict(os.environ, NUMBA_CPU_NAME="haswell", NUMBA_CPU_FEATURES="",
                        NUMBA_CACHE_DIR=str(tmp_path / "numba"))
     out = tmp_path / "tiles.npy"
     subprocess.run([sys.executable, "-c", script, str(out)], check=True, env=environment,
                    timeout=600)
-    tiles = np.load(out)
     rng = np.random.default_rng(1)
     image = rng.integers(0, 256, (37, 131, 3), dtype=np.uint8)
     lut = np.ascontiguousarray(rng.normal(size=(3, 32)).astype(np.float32)[:, np.arange(256) // 8])
-    expected, magnitude = reference_tiles(image, lut, 8)
-    np.testing.assert_array_less(np.abs(tiles - expected), 1e-5 * magnitude + 1e-30)
+    np.testing.assert_array_equal(np.load(out), naive_bin_order_tile_sums(image, lut, 8))
 
 
 @pytest.mark.parametrize("shape", SHAPES)
@@ -310,7 +357,7 @@ def test_kernel_writes_every_output_element(path, shape, tile, factor, kind):
     tiles = np.full((shape[0] // tile, shape[1] // tile), np.nan, np.float32)
     box = np.full((shape[0] // factor, shape[1] // factor, 3) if factor else (0, 0, 3), np.nan,
                   np.float32)
-    _colour_maps(path, image, lut, tile, factor, True, factor > 0, tiles, box)
+    kernel_maps(path, image, lut, tile, factor, tiles, box)
     assert not np.isnan(tiles).any() and not np.isnan(box).any()
     expected_tiles, expected_box = check(image, lut, tile, factor)
     np.testing.assert_array_equal(tiles, expected_tiles)

@@ -15,7 +15,7 @@ subprocess with its own empty ``NUMBA_CACHE_DIR``:
 Default profile (:func:`test_target_matches_native_and_naive`): the script at
 the bottom of this file runs every kernel family on small inputs chosen to
 reach each vector path (both channel counts and the first/last-group blocks
-of the cells, every resize path the target has, the colour bin-table path,
+of the cells, every resize path the target has, the colour bin-table paths,
 the HLS blocks, the phase scorer), checks each against its naive reference
 or OpenCV, and saves the outputs; the test then requires them bit-identical
 to the native target's, except where :data:`TARGET_ROUNDED` lists them (the
@@ -53,15 +53,15 @@ TARGETS = {
 
 #: Outputs whose rounding belongs to the target (checked against the naive
 #: reference in the script, not against the native target's bits): the colour
-#: tile sums of the bin-table path and of the scalar lookups add in different
-#: orders; the block norms and window dot products are compiled with
+#: tile sums of the bin-table paths (AVX-512 and AVX2, one order) and of the
+#: scalar lookups (generic) add in different orders; the block norms and window dot products are compiled with
 #: fastmath "contract" and "reassoc" (blocks.py, score.py), so without FMA
 #: (generic) and with 4-lane vectors their float32 rounding differs
 #: (measured: up to 4.5e-8 in blocks, 1.9e-6 in HOG scores, 6.7e-4 on
 #: spatial scores of magnitude ~1e3).
 TARGET_ROUNDED = {
     "native": (),
-    "haswell": ("colour_tiles_binned",),
+    "haswell": (),
     "generic": ("colour_tiles_binned", "blocks", "scores_step1", "scores_step2",
                 "spatial_scores"),
 }
@@ -118,8 +118,10 @@ def test_targets_take_their_own_paths(fingerprints):
     assert paths.get("haswell", {}).get("avx2") is True
     assert paths["haswell"]["avx512f"] is False
     assert paths["haswell"]["hog_lanes"] == 8
+    assert paths["haswell"]["colour_path"] == 2       # PATH_AVX2
     assert paths.get("generic", {}).get("ssse3") is False
     assert paths["generic"]["hog_lanes"] == 4
+    assert paths["generic"]["colour_path"] == 1       # PATH_SCALAR
 
 
 @pytest.mark.slow
@@ -146,6 +148,7 @@ def _outputs():
 
     from fastdet.kernels import _llvm, hog
     from fastdet.kernels.blocks import normalize_blocks
+    import fastdet.kernels.colour as colour_kernels
     from fastdet.kernels.colour import colour_maps
     from fastdet.kernels.convert import bgr_to_hls
     from fastdet.kernels.heat import accumulate_heat
@@ -257,7 +260,7 @@ def _outputs():
                                   naive_component_boxes(labels, count))
     paths = {"ssse3": _llvm.HAVE_SSSE3, "avx2": _llvm.HAVE_AVX2,
              "avx512f": _llvm.HAVE_AVX512F, "avx512bw": _llvm.HAVE_AVX512BW,
-             "hog_lanes": hog._LANES}
+             "hog_lanes": hog._LANES, "colour_path": colour_kernels.TILE_PATH}
     return paths, arrays
 
 
