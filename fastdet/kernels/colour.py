@@ -261,6 +261,15 @@ def _expand_pixels():
     return mask
 
 
+def _column_sum_arguments(context, builder, signature, args):
+    """A column-sums intrinsic's arguments ``(flat, start, row_bytes, rows,
+    blocks, table, sums)`` as ``(flat, table, sums)`` arrays and the four
+    integers."""
+    arrays = tuple(context.make_array(signature.args[k])(context, builder, args[k])
+                   for k in (0, 5, 6))
+    return arrays, args[1:5]
+
+
 @intrinsic
 def _bin_column_sums(typingctx, flat, start, row_bytes, rows, blocks, table, sums):
     """sums[16k + j] = weight sum over ``rows`` rows of pixel column 16k + j,
@@ -281,10 +290,8 @@ def _bin_column_sums(typingctx, flat, start, row_bytes, rows, blocks, table, sum
     sig = types.void(flat, start, row_bytes, rows, blocks, table, sums)
 
     def codegen(context, builder, signature, args):
-        flat_a = context.make_array(signature.args[0])(context, builder, args[0])
-        table_a = context.make_array(signature.args[5])(context, builder, args[5])
-        sums_a = context.make_array(signature.args[6])(context, builder, args[6])
-        start, row_bytes, rows, blocks = args[1:5]
+        (flat_a, table_a, sums_a), (start, row_bytes, rows, blocks) = _column_sum_arguments(
+            context, builder, signature, args)
         i8, i16, i32, f32 = ir.IntType(8), ir.IntType(16), ir.IntType(32), ir.FloatType()
         v64i8, v32i16 = ir.VectorType(i8, 64), ir.VectorType(i16, 32)
         v16i32, v16f32 = ir.VectorType(i32, 16), ir.VectorType(f32, 16)
@@ -446,10 +453,8 @@ def _bin_column_sums_avx2(typingctx, flat, start, row_bytes, rows, blocks, table
     sig = types.void(flat, start, row_bytes, rows, blocks, table, sums)
 
     def codegen(context, builder, signature, args):
-        flat_a = context.make_array(signature.args[0])(context, builder, args[0])
-        table_a = context.make_array(signature.args[5])(context, builder, args[5])
-        sums_a = context.make_array(signature.args[6])(context, builder, args[6])
-        start, row_bytes, rows, blocks = args[1:5]
+        (flat_a, table_a, sums_a), (start, row_bytes, rows, blocks) = _column_sum_arguments(
+            context, builder, signature, args)
         i8, i16, i32, f32 = ir.IntType(8), ir.IntType(16), ir.IntType(32), ir.FloatType()
         v16i8, v32i8 = ir.VectorType(i8, 16), ir.VectorType(i8, 32)
         v16i16, v8f32, v16f32 = ir.VectorType(i16, 16), ir.VectorType(f32, 8), ir.VectorType(f32, 16)
