@@ -18,10 +18,9 @@ reach each vector path (both channel counts and the first/last-group blocks
 of the cells, every resize path the target has, the colour bin-table paths,
 the HLS blocks, the phase scorer), checks each against its naive reference
 or OpenCV, and saves the outputs; the test then requires them bit-identical
-to the native target's, except where :data:`TARGET_ROUNDED` lists them (the
-colour tile sums of the scalar path; on ``generic`` also the fastmath block
-norms and dot products): those are checked against the float64 reference
-only.  The cells (16, 8 and 4 lanes), resize, HLS, heat and labels are
+to the native target's, except where :data:`TARGET_ROUNDED` lists them (on
+``generic``: the colour tile sums of the scalar path, the fastmath block norms
+and dot products): those are checked against the float64 reference only.  The cells (16, 8 and 4 lanes), resize, HLS, heat and labels are
 bit-identical on all three.  11-20 s per target on the development machine,
 nearly all of it compiling (about 50 s for the module).
 
@@ -54,9 +53,10 @@ TARGETS = {
 #: Outputs whose rounding belongs to the target (checked against the naive
 #: reference in the script, not against the native target's bits): the colour
 #: tile sums of the bin-table paths (AVX-512 and AVX2, one order) and of the
-#: scalar lookups (generic) add in different orders; the block norms and window dot products are compiled with
-#: fastmath "contract" and "reassoc" (blocks.py, score.py), so without FMA
-#: (generic) and with 4-lane vectors their float32 rounding differs
+#: scalar lookups (generic) add in different orders; the block norms and
+#: window dot products are compiled with fastmath "contract" and "reassoc"
+#: (blocks.py, score.py), so without FMA (generic) and with 4-lane vectors
+#: their float32 rounding differs
 #: (measured: up to 4.5e-8 in blocks, 1.9e-6 in HOG scores, 6.7e-4 on
 #: spatial scores of magnitude ~1e3).
 TARGET_ROUNDED = {
