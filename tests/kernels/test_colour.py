@@ -264,6 +264,30 @@ def test_haswell_target_takes_the_avx2_path(tmp_path):
     np.testing.assert_array_equal(np.load(out), naive_bin_order_tile_sums(image, lut, 8))
 
 
+def test_avx512_target_compiles_the_avx512_path(tmp_path):
+    """Compiled for an AVX-512 CPU (NUMBA_CPU_NAME=skylake-avx512 with its own
+    features), the kernel takes the AVX-512 branch and its code uses
+    vpermi2ps on 512-bit registers; compiled only, not run, so that machines
+    without AVX-512 still check that the branch compiles."""
+    script = textwrap.dedent("""
+        import numpy as np
+        from numba import typeof
+        import fastdet.kernels.colour as colour
+        assert colour.TILE_PATH == colour.PATH_AVX512 and not colour._CAN_AVX2
+        args = (np.int64(colour.PATH_AVX512), np.zeros((16, 64, 3), np.uint8),
+                np.zeros((3, 256), np.float32), np.zeros(96, np.float32), np.int64(16),
+                np.int64(2), True, True, np.zeros((1, 4), np.float32),
+                np.zeros((8, 32, 3), np.float32))
+        kernel = colour._colour_maps
+        kernel.compile(tuple(typeof(a) for a in args))
+        code = kernel.inspect_asm(kernel.signatures[0])
+        assert "zmm" in code and ("vpermi2ps" in code or "vpermt2ps" in code)
+    """)
+    environment = dict(os.environ, NUMBA_CPU_NAME="skylake-avx512", NUMBA_CPU_FEATURES="",
+                       NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    subprocess.run([sys.executable, "-c", script], check=True, env=environment, timeout=600)
+
+
 @pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize("factor", [1, 2, 3, 4])
 def test_box_alone_matches_numpy(shape, factor):
