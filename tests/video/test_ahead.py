@@ -64,6 +64,37 @@ def test_searched_frames_are_scored_ahead_and_the_rest_not_looked_at(frames):
     assert pipeline.full_searches == 4
 
 
+def test_a_helper_finds_frames_to_score_while_the_calling_thread_scores_one(frames,
+                                                                           monkeypatch):
+    # The calling thread queues frames only between those it scores, and runs
+    # every frame's temporal steps besides: a helper must find frames to score
+    # meanwhile (QUEUED_PER_THREAD), not wait for the queue to be topped up.
+    by_helpers = threading.Semaphore(0)
+    helper_frames_meanwhile = []
+    original = Detector.hits
+
+    def hits(self, frame):
+        result = original(self, frame)
+        if threading.current_thread() is not threading.main_thread():
+            by_helpers.release()
+        elif not helper_frames_meanwhile:
+            # The calling thread's first frame lasts until the helper scored
+            # three (or gave up waiting for work).
+            count = 0
+            while count < 3 and by_helpers.acquire(timeout=10):
+                count += 1
+            helper_frames_meanwhile.append(count)
+        return result
+
+    monkeypatch.setattr(Detector, "hits", hits)
+    pipeline = VideoPipeline(Detector(threads=1), TrackConfig())
+    out = [item for item, _, _ in process_ahead(pipeline, range(8), 2,
+                                                lambda index, wanted: frames[index])]
+    assert out == list(range(8))
+    assert helper_frames_meanwhile == [3]
+    assert helpers_alive() == []
+
+
 def test_tracking_and_other_detectors_go_one_frame_at_a_time():
     block, _ = moving_block(3)
     assert not can_look_ahead(VideoPipeline(Detector(threads=1), TrackConfig(tracking=True)))
