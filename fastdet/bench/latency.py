@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 from ..detector.detector import Detector
 from ..errors import InputError
 from .peers import load_reference_module, run_opencv_peer
-from .timing import STAGE_LABELS, fastdet_name, speedup, spread_indices, time_callable, time_fastdet
+from .timing import (STAGE_LABELS, fastdet_name, speedup, spread_indices, time_callable,
+                     time_fastdet_in_turn)
 
 
 # -- the comparison -----------------------------------------------------------
@@ -72,17 +73,14 @@ def run_benchmark(frames, threads=(1,), repeat=3, reference_frames=5, opencv=Tru
     notes = []
     threads = sorted(set(threads))
 
-    def fastdet_run(count):
-        # Detector() sets the process-wide thread count: time it right away.
-        detector = Detector(model=model, config=config, threads=count)
-        log(f"timing {fastdet_name(detector.threads)} on {len(frames)} frames ...")
-        return detector, time_fastdet(detector, frames, repeat, fastdet_name(detector.threads))
-
-    # One thread first, peers next, more threads last: an OpenMP pool keeps
-    # spinning for a while after a parallel region and would slow whatever
-    # runs right after it on a busy machine.
-    detector, first = fastdet_run(threads[0])
-    fastdet_results, peer_results = [first], []
+    # fastdet's thread counts in turn on every frame (a slow spell of the
+    # machine hits them alike), then the peers.
+    detectors = [Detector(model=model, config=config, threads=count) for count in threads]
+    names = [fastdet_name(detector.threads) for detector in detectors]
+    log(f"timing {', '.join(names)} on {len(frames)} frames, in turn on each frame ...")
+    fastdet_results = time_fastdet_in_turn(list(zip(names, detectors)), frames, repeat)
+    first, peer_results = fastdet_results[0], []
+    detector = detectors[0]
     plans = detector.plans(size)
     model_obj, config_obj = detector.model, detector.config
     Detector(model=model_obj, config=config_obj, threads=1)  # peers get one thread too
@@ -109,8 +107,6 @@ def run_benchmark(frames, threads=(1,), repeat=3, reference_frames=5, opencv=Tru
                 peer_results.extend(opencv_results)
             except (InputError, subprocess.TimeoutExpired) as exc:
                 notes.append(f"OpenCV peer skipped: {exc}")
-    for count in threads[1:]:
-        fastdet_results.append(fastdet_run(count)[1])
     results = fastdet_results + peer_results
     for note in notes:
         log(note)

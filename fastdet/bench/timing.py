@@ -13,6 +13,7 @@ import time
 from dataclasses import dataclass, field
 
 import cv2
+import numba
 import numpy as np
 
 from ..detector.scoring import STAGES
@@ -134,14 +135,61 @@ def time_fastdet(detector, frames, repeat=3, name="fastdet"):
     idle cores (it assumes the threads, which take tasks as they finish
     them, would split the work evenly).
     """
-    detector(frames[0])
-    per_frame = []
-    stage_totals = dict.fromkeys(STAGES, 0.0)
-    busy_totals = np.zeros(len(detector.thread_busy))
-    cpu_totals = np.zeros(len(detector.thread_cpu))
-    estimates = []
-    windows = 0
+    return time_fastdet_in_turn([(name, detector)], frames, repeat)[0]
+
+
+def time_fastdet_in_turn(named_detectors, frames, repeat=3):
+    """:func:`time_fastdet` of several detectors, frame by frame in turn.
+
+    Each frame gets the first detector's ``repeat`` calls, then the next
+    detector's, and so on, each detector with its own thread counts set
+    (Numba's and OpenCV's, which :class:`~fastdet.detector.detector.Detector`
+    sets process-wide when it is made).  A slow spell of a shared machine
+    then hits all of them alike: timed one after the other, a minute apart,
+    two threads came out 0.86x, 2.2x and 1.6x one thread in three runs of
+    ``fastdet bench`` on one machine (AMD EPYC Zen 4, 2 vCPUs).
+
+    Parameters
+    ----------
+    named_detectors : sequence of (str, Detector)
+    frames : list of ndarray
+    repeat : int
+
+    Returns
+    -------
+    list of PipelineResult
+        In the order of ``named_detectors``.
+    """
+    timers = [_DetectorTimes(name, detector) for name, detector in named_detectors]
+    for timer in timers:
+        timer.use_threads()
+        timer.detector(frames[0])
     for frame in frames:
+        for timer in timers:
+            timer.time_frame(frame, repeat)
+    return [timer.result() for timer in timers]
+
+
+class _DetectorTimes:
+    """What :func:`time_fastdet_in_turn` adds up for one detector."""
+
+    def __init__(self, name, detector):
+        self.name, self.detector = name, detector
+        self.per_frame = []
+        self.stage_totals = dict.fromkeys(STAGES, 0.0)
+        self.busy_totals = np.zeros(len(detector.thread_busy))
+        self.cpu_totals = np.zeros(len(detector.thread_cpu))
+        self.estimates = []
+        self.windows = 0
+        self.runs = 0
+
+    def use_threads(self):
+        numba.set_num_threads(self.detector.threads)
+        cv2.setNumThreads(self.detector.threads)
+
+    def time_frame(self, frame, repeat):
+        detector = self.detector
+        self.use_threads()
         samples = []
         for _ in range(repeat):
             cpu = time.thread_time()
@@ -149,18 +197,23 @@ def time_fastdet(detector, frames, repeat=3, name="fastdet"):
             detector(frame)
             samples.append(time.perf_counter() - start)
             serial = time.thread_time() - cpu - detector.thread_cpu[0]
-            estimates.append(serial + sum(detector.thread_cpu) / detector.threads)
+            self.estimates.append(serial + sum(detector.thread_cpu) / detector.threads)
             for stage in STAGES:
-                stage_totals[stage] += detector.timings[stage]
-            busy_totals += detector.thread_busy
-            cpu_totals += detector.thread_cpu
-        per_frame.append(statistics.median(samples))
-        windows += detector.last_windows_scored
-    runs = len(frames) * repeat
-    stages = {stage: total / runs * 1e3 for stage, total in stage_totals.items()}
-    return PipelineResult(name, per_frame, list(range(len(frames))), windows / len(frames),
-                          stages, list(busy_totals / runs * 1e3), list(cpu_totals / runs * 1e3),
-                          statistics.median(estimates) * 1e3)
+                self.stage_totals[stage] += detector.timings[stage]
+            self.busy_totals += detector.thread_busy
+            self.cpu_totals += detector.thread_cpu
+        self.per_frame.append(statistics.median(samples))
+        self.windows += detector.last_windows_scored
+        self.runs += repeat
+
+    def result(self):
+        frames, runs = len(self.per_frame), self.runs
+        stages = {stage: total / runs * 1e3 for stage, total in self.stage_totals.items()}
+        return PipelineResult(self.name, self.per_frame, list(range(frames)),
+                              self.windows / frames, stages,
+                              list(self.busy_totals / runs * 1e3),
+                              list(self.cpu_totals / runs * 1e3),
+                              statistics.median(self.estimates) * 1e3)
 
 
 def fastdet_name(threads):

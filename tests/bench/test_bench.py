@@ -16,6 +16,7 @@ from fastdet.bench.scaling_plot import plot_scaling
 from fastdet.bench.timing import PipelineResult, speedup, spread_indices
 from fastdet.cli.app import EXIT_ERROR, main
 from fastdet.detector.config import DetectorConfig
+from fastdet.detector.detector import Detector
 from fastdet.detector.features import FeatureLayout, FeatureOptions
 from fastdet.detector.model import Model
 from fastdet.detector.plan import plan_scales
@@ -101,6 +102,25 @@ def test_missing_opencv_peer_is_a_note_not_a_failure(model, monkeypatch, tmp_pat
                         model=model, log=lambda line: None)
     assert [r.name for r in run.results] == ["fastdet 1 thread"]
     assert any("setup.sh" in note for note in run.notes)
+
+
+def test_thread_counts_are_timed_in_turn_on_every_frame(model, monkeypatch):
+    # A slow spell of a shared machine must hit every thread count alike.
+    calls = []
+    original = Detector.__call__
+
+    def detect(self, frame):
+        calls.append((self.threads, int(frame[0, 0, 0])))
+        return original(self, frame)
+
+    monkeypatch.setattr(Detector, "__call__", detect)
+    frames = [np.full((180, 320, 3), k, np.uint8) for k in range(3)]
+    run = run_benchmark(frames, threads=(2, 1), repeat=2, reference_frames=0, opencv=False,
+                        model=model, log=lambda line: None)
+    assert [r.name for r in run.results] == ["fastdet 1 thread", "fastdet 2 threads"]
+    assert [len(r.seconds) for r in run.results] == [3, 3]
+    # One untimed call each on the first frame, then per frame: 1 thread twice, 2 threads twice.
+    assert calls == [(1, 0), (2, 0)] + [(threads, k) for k in range(3) for threads in (1, 1, 2, 2)]
 
 
 def test_floor_counts_votes_and_multiply_adds(model):
