@@ -9,7 +9,7 @@
   same frames: fastdet with one thread against the reference, and against
   OpenCV's ``HOGDescriptor`` (in its own environment, see
   ``benchmarks/opencv_peer/``) on exactly fastdet's windows and in its
-  native multi-scale search.
+  native multi-scale search, fastdet and OpenCV in turn on each frame.
 
 The model is ``$FASTDET_BENCH_MODEL`` or the bundled default.
 """
@@ -134,10 +134,12 @@ class OpenCVPeer:
             return {"skip": skip_reason(bench_model)}
         frames = list(video_frames())
         detector = Detector(bench_model(), threads=1)
-        fastdet = timing.time_fastdet(detector, frames, repeat=3)
         plans = detector.plans((frames[0].shape[1], frames[0].shape[0]))
-        results, _ = peers.run_opencv_peer(frames, plans, threads=(1,), repeat=3,
-                                                   peer_script=PEER_SCRIPT)
+        with peers.OpenCVPeer(frames, plans, threads=(1,), repeat=3,
+                              peer_script=PEER_SCRIPT) as peer:
+            fastdet, = timing.time_fastdet_in_turn([("fastdet", detector)], frames, repeat=3,
+                                                   also=peer.time_frame)
+            results = peer.results()
         by_mode = {("same" if "same windows" in r.name else "native"): r for r in results}
         return {"fastdet": fastdet.median_ms / 1e3, "same": by_mode["same"].median_ms / 1e3,
                 "native": by_mode["native"].median_ms / 1e3,

@@ -4,9 +4,14 @@ This script runs in its own virtual environment (``setup.sh`` beside it makes
 one with ``opencv-python-headless<5``): OpenCV 5 dropped ``HOGDescriptor``,
 fastdet's environment keeps OpenCV 5, and the two wheels cannot share an
 environment.  It therefore imports nothing from fastdet.  The caller
-(``fastdet bench`` or the asv suite) writes the decoded frames and a job
-description, starts this script as a subprocess in the same benchmark run,
-and reads one JSON object from its standard output.
+(``fastdet bench`` or the asv suite, through ``fastdet.bench.peers.OpenCVPeer``)
+writes the decoded frames and a job description and starts this script as a
+subprocess, which then times one frame at a time when asked: the caller
+times fastdet on a frame, then asks for OpenCV's times on the same frame, so
+both are timed within milliseconds of each other and a slow spell of a
+shared machine hits both alike.  Timed a minute apart instead, the ratio
+moved with the machine (2.0-3.5x in runs of ``fastdet bench`` on one AMD
+EPYC whose speed swung by 30-40 %).
 
 The detector is OpenCV's own: a linear SVM (scikit-learn ``LinearSVC``)
 trained on ``cv2.HOGDescriptor((64, 64), (16, 16), (8, 8), (8, 8), 9)``
@@ -15,7 +20,7 @@ features of the grey 64x64 crops of the shared data set, handed to
 keyed by the data set and the OpenCV version (nothing data-derived is
 committed).
 
-Two searches are timed per frame, each the median of ``repeat`` passes:
+Two searches are timed per frame, each the median of ``repeat`` calls:
 
 ``same_windows``
     Exactly fastdet's windows: per fastdet scale plan, the plan's region of
@@ -28,9 +33,17 @@ Two searches are timed per frame, each the median of ``repeat`` passes:
     many pyramid levels as fastdet has scales spanning the same window
     sizes, a fixed ``winStride`` and OpenCV's default grouping.
 
-Usage::
+Protocol (one JSON object per line)::
 
-    python peer.py JOB.json        # prints the result JSON on stdout
+    python peer.py JOB.json
+    -> {"opencv_version": ..., "python": ..., "detector": {...},
+        "windows_per_frame": {"same_windows": N, "native": M}}      once ready
+    <- {"frame": I, "threads": T, "repeat": R}                       per request
+    -> {"frame": I, "threads": T, "seconds": {mode: median}, "hits": {mode: n}}
+
+An empty line or the end of the input ends it (exit 0).  Every thread count
+of the job is warmed up on the first frame before the ready line, so no
+request pays for training, loading or OpenCV's thread pool.
 """
 
 from __future__ import annotations
@@ -203,23 +216,18 @@ class Native:
         return len(boxes)
 
 
-def time_pipeline(pipeline, frames, repeat):
-    """Median of ``repeat`` timed passes per frame, after one warm-up call."""
-    pipeline(frames[0])
-    seconds, hits = [], 0
-    for frame in frames:
-        samples = []
-        for _ in range(repeat):
-            start = time.perf_counter()
-            found = pipeline(frame)
-            samples.append(time.perf_counter() - start)
-        seconds.append(statistics.median(samples))
-        hits += found
-    return seconds, hits / len(frames)
+def time_frame(pipeline, frame, repeat):
+    """Median seconds of ``repeat`` timed calls on one frame, and the hits found."""
+    samples = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        found = pipeline(frame)
+        samples.append(time.perf_counter() - start)
+    return statistics.median(samples), found
 
 
-def run(job):
-    """Train (or load) the detector and time both searches; the result dict."""
+def prepare(job):
+    """Frames, the timed searches by mode, and the ready report of a job."""
     import cv2
     import numpy as np
 
@@ -234,16 +242,37 @@ def run(job):
     modes = {"same_windows": SameWindows(cv2, detector, job["plans"], threshold)}
     if job.get("native"):
         modes["native"] = Native(cv2, detector, job["native"], threshold)
-    results = []
     for threads in job["threads"]:
         cv2.setNumThreads(int(threads))
+        for pipeline in modes.values():
+            pipeline(frames[0])
+    ready = {"opencv_version": cv2.__version__, "python": sys.version.split()[0],
+             "detector": train_info,
+             "windows_per_frame": {mode: pipeline.windows(frames[0])
+                                   for mode, pipeline in modes.items()}}
+    return cv2, frames, modes, ready
+
+
+def serve(job, requests, replies):
+    """Answer the timing requests read from ``requests``, one line each, on ``replies``."""
+    cv2, frames, modes, ready = prepare(job)
+    _send(replies, ready)
+    for line in requests:
+        if not line.strip():
+            break
+        request = json.loads(line)
+        index, threads = int(request["frame"]), int(request["threads"])
+        cv2.setNumThreads(threads)
+        reply = {"frame": index, "threads": threads, "seconds": {}, "hits": {}}
         for mode, pipeline in modes.items():
-            seconds, hits = time_pipeline(pipeline, frames, int(job.get("repeat", 3)))
-            results.append({"mode": mode, "threads": int(threads), "seconds": seconds,
-                            "windows_per_frame": pipeline.windows(frames[0]),
-                            "hits_per_frame": hits})
-    return {"opencv_version": cv2.__version__, "python": sys.version.split()[0],
-            "detector": train_info, "results": results}
+            reply["seconds"][mode], reply["hits"][mode] = time_frame(
+                pipeline, frames[index], int(request.get("repeat", 3)))
+        _send(replies, reply)
+
+
+def _send(replies, message):
+    replies.write(json.dumps(message) + "\n")
+    replies.flush()
 
 
 def main(argv=None):
@@ -251,7 +280,7 @@ def main(argv=None):
     if len(argv) != 1:
         raise SystemExit("usage: python peer.py JOB.json")
     job = json.loads(Path(argv[0]).read_text())
-    print(json.dumps(run(job)))
+    serve(job, sys.stdin, sys.stdout)
     return 0
 
 

@@ -1,18 +1,18 @@
 """The latency comparison of ``fastdet bench``: fastdet per thread count against its peers.
 
 The slow reference is timed on a subsample of the frames and compared with
-fastdet's times on exactly those frames; OpenCV is timed on every frame.
+fastdet's times on exactly those frames; OpenCV is timed on every frame, in
+turn with fastdet's thread counts.
 """
 
 from __future__ import annotations
 
 import math
-import subprocess
 from dataclasses import dataclass, field
 
 from ..detector.detector import Detector
 from ..errors import InputError
-from .peers import load_reference_module, run_opencv_peer
+from .peers import OpenCVPeer, load_reference_module
 from .timing import (STAGE_LABELS, fastdet_name, speedup, spread_indices, time_callable,
                      time_fastdet_in_turn)
 
@@ -73,17 +73,24 @@ def run_benchmark(frames, threads=(1,), repeat=3, reference_frames=5, opencv=Tru
     notes = []
     threads = sorted(set(threads))
 
-    # fastdet's thread counts in turn on every frame (a slow spell of the
-    # machine hits them alike), then the peers.
+    # fastdet's thread counts and OpenCV in turn on every frame (a slow spell
+    # of the machine hits them alike), then the slow reference.
     detectors = [Detector(model=model, config=config, threads=count) for count in threads]
     names = [fastdet_name(detector.threads) for detector in detectors]
-    log(f"timing {', '.join(names)} on {len(frames)} frames, in turn on each frame ...")
-    fastdet_results = time_fastdet_in_turn(list(zip(names, detectors)), frames, repeat)
+    plans = detectors[0].plans(size)
+    model_obj, config_obj = detectors[0].model, detectors[0].config
+    opencv_peer = (_OpenCVInTurn(frames, plans, threads, repeat, model_obj, notes, log)
+                   if opencv else None)
+    timed = names + (["OpenCV's HOGDescriptor"] if opencv_peer and opencv_peer.peer else [])
+    log(f"timing {', '.join(timed)} on {len(frames)} frames, in turn on each frame ...")
+    try:
+        fastdet_results = time_fastdet_in_turn(list(zip(names, detectors)), frames, repeat,
+                                               also=opencv_peer)
+    finally:
+        opencv_results, opencv_report = (opencv_peer.finish() if opencv_peer is not None
+                                          else ([], None))
     first, peer_results = fastdet_results[0], []
-    detector = detectors[0]
-    plans = detector.plans(size)
-    model_obj, config_obj = detector.model, detector.config
-    Detector(model=model_obj, config=config_obj, threads=1)  # peers get one thread too
+    Detector(model=model_obj, config=config_obj, threads=1)  # the reference gets one thread too
 
     if reference_frames:
         reference = load_reference_module()
@@ -96,21 +103,42 @@ def run_benchmark(frames, threads=(1,), repeat=3, reference_frames=5, opencv=Tru
             peer = reference.ReferenceDetector(model_obj, config_obj)
             peer_results.append(time_callable("reference", peer, frames, indices,
                                               first.windows_per_frame))
-    opencv_report = None
-    if opencv:
-        if model_obj.options.pixels_per_cell != 8:
-            notes.append("OpenCV peer skipped: it needs 8-pixel cells")
-        else:
-            try:
-                log("timing the OpenCV HOGDescriptor peer (its own environment) ...")
-                opencv_results, opencv_report = run_opencv_peer(frames, plans, threads, repeat)
-                peer_results.extend(opencv_results)
-            except (InputError, subprocess.TimeoutExpired) as exc:
-                notes.append(f"OpenCV peer skipped: {exc}")
-    results = fastdet_results + peer_results
+    results = fastdet_results + peer_results + opencv_results
     for note in notes:
         log(note)
     return BenchmarkRun(results, len(frames), size, plans, notes, opencv_report)
+
+
+class _OpenCVInTurn:
+    """The OpenCV peer's turn on each frame; a peer that fails leaves a note, not a failure."""
+
+    def __init__(self, frames, plans, threads, repeat, model, notes, log):
+        self.notes, self.peer = notes, None
+        if model.options.pixels_per_cell != 8:
+            notes.append("OpenCV peer skipped: it needs 8-pixel cells")
+            return
+        log("starting the OpenCV HOGDescriptor peer (its own environment) ...")
+        self.peer = OpenCVPeer(frames, plans, threads, repeat)
+        self._guarded(self.peer.start)
+
+    def __call__(self, index):
+        if self.peer is not None:
+            self._guarded(self.peer.time_frame, index)
+
+    def finish(self):
+        """The peer's results and report (none after a failure); ends the peer."""
+        if self.peer is None:
+            return [], None
+        self.peer.close()
+        return self.peer.results(), self.peer.report
+
+    def _guarded(self, step, *args):
+        try:
+            step(*args)
+        except (InputError, OSError) as exc:
+            self.notes.append(f"OpenCV peer skipped: {exc}")
+            self.peer.close()
+            self.peer = None
 
 
 # -- tables ---------------------------------------------------------------------

@@ -6,7 +6,7 @@
 * ``opencv``: OpenCV's ``HOGDescriptor`` with a linear SVM trained on its own
   grey HOG features, run by ``benchmarks/opencv_peer/peer.py`` in its own
   virtual environment (OpenCV 5, which fastdet uses, has no
-  ``HOGDescriptor``); see :func:`run_opencv_peer`.
+  ``HOGDescriptor``), frame by frame on request; see :class:`OpenCVPeer`.
 """
 
 from __future__ import annotations
@@ -14,9 +14,11 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import queue
 import subprocess
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -97,7 +99,7 @@ def native_search(plans):
 
 
 def opencv_peer_job(plans, threads=(1,), repeat=3, data=None, train_stride=1):
-    """The job description :func:`run_opencv_peer` hands the peer (without frames)."""
+    """The job description :class:`OpenCVPeer` hands the peer (without frames)."""
     from ..files.shared_data import data_dir
 
     return {
@@ -113,9 +115,14 @@ def opencv_peer_job(plans, threads=(1,), repeat=3, data=None, train_stride=1):
     }
 
 
-def run_opencv_peer(frames, plans, threads=(1,), repeat=3, data=None, timeout=1800,
-                    peer_script=None):
-    """Time OpenCV's HOGDescriptor on ``frames`` in its own environment.
+class OpenCVPeer:
+    """OpenCV's HOGDescriptor, timed frame by frame in its own environment.
+
+    The peer (``benchmarks/opencv_peer/peer.py``) runs as a subprocess that
+    times the frame it is asked for, so a caller can time fastdet and OpenCV
+    on each frame in turn (:func:`fastdet.bench.timing.time_fastdet_in_turn`)
+    and a slow spell of a shared machine hits both alike.  Use it as a
+    context manager; the peer process and its files go when it closes.
 
     Parameters
     ----------
@@ -124,51 +131,143 @@ def run_opencv_peer(frames, plans, threads=(1,), repeat=3, data=None, timeout=18
     plans : tuple of ScalePlan
         fastdet's plans for that size (pixels per cell must be 8, OpenCV's cell).
     threads : sequence of int
-        ``cv2.setNumThreads`` values to time.
+        ``cv2.setNumThreads`` values to time, each on every frame.
     repeat : int
-        Timed passes per frame (the median is kept).
+        Timed calls per frame and mode (the median is kept).
     data : path, optional
         Data set for the peer's SVM (default: the shared data).
-    timeout : float
-        Seconds the peer may take (training its SVM included, on a cold cache).
+    start_timeout : float
+        Seconds the peer may take to be ready (training its SVM included, on
+        a cold cache).
+    frame_timeout : float
+        Seconds the peer may take to answer for one frame.
     peer_script : path, optional
         ``peer.py`` (default: the checkout's ``benchmarks/opencv_peer/peer.py``).
-
-    Returns
-    -------
-    results : list of PipelineResult
-        ``opencv same windows, T thread(s)`` and ``opencv native, ...``.
-    info : dict
-        The peer's report: OpenCV version, training figures.
 
     Raises
     ------
     InputError
-        When the peer environment is missing or the peer fails.
+        When the peer environment is missing, the peer fails or does not
+        answer in time (from :meth:`start` and :meth:`time_frame`).
     """
-    python = opencv_peer_python()
-    if peer_script is None and benchmarks_dir() is not None:
-        peer_script = benchmarks_dir() / "opencv_peer" / "peer.py"
-    if python is None or peer_script is None:
-        raise InputError("OpenCV peer not set up: run `bash benchmarks/opencv_peer/setup.sh` "
-                         f"from the checkout (or set {OPENCV_PEER_ENV} to its environment)")
-    job = opencv_peer_job(plans, threads, repeat, data)
-    with tempfile.TemporaryDirectory(prefix="fastdet-opencv-peer-") as tmp:
-        job["frames"] = str(Path(tmp) / "frames.npy")
-        np.save(job["frames"], np.stack(frames))
-        job_file = Path(tmp) / "job.json"
-        job_file.write_text(json.dumps(job))
-        completed = subprocess.run([str(python), str(peer_script), str(job_file)],
-                                   capture_output=True, text=True, timeout=timeout, cwd=tmp)
-    if completed.returncode != 0:
-        tail = " ".join(completed.stderr.strip().splitlines()[-3:])
-        raise InputError(f"OpenCV peer failed (exit {completed.returncode}): {tail}")
-    report = json.loads(completed.stdout.strip().splitlines()[-1])
-    results = []
-    for entry in report["results"]:
-        label = "same windows" if entry["mode"] == "same_windows" else "native multiscale"
-        threads_label = f"{entry['threads']} thread" + ("s" if entry["threads"] > 1 else "")
-        results.append(PipelineResult(f"opencv {label}, {threads_label}", entry["seconds"],
-                                      list(range(len(entry["seconds"]))),
-                                      entry["windows_per_frame"]))
-    return results, report
+
+    def __init__(self, frames, plans, threads=(1,), repeat=3, data=None, start_timeout=1800,
+                 frame_timeout=120, peer_script=None):
+        self.frames, self.threads, self.repeat = frames, [int(t) for t in threads], int(repeat)
+        self.job = opencv_peer_job(plans, self.threads, repeat, data)
+        self.start_timeout, self.frame_timeout = start_timeout, frame_timeout
+        self.peer_script = peer_script
+        if peer_script is None and benchmarks_dir() is not None:
+            self.peer_script = benchmarks_dir() / "opencv_peer" / "peer.py"
+        self.report = None
+        self._seconds = {}  # (mode, threads) -> seconds per timed frame
+        self._indices = []
+        self._process = self._folder = self._stderr = self._reader = None
+        self._replies = queue.Queue()
+
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def start(self):
+        """Start the peer and wait until it is ready (its SVM trained or loaded)."""
+        python = opencv_peer_python()
+        if python is None or self.peer_script is None:
+            raise InputError("OpenCV peer not set up: run `bash benchmarks/opencv_peer/setup.sh` "
+                             f"from the checkout (or set {OPENCV_PEER_ENV} to its environment)")
+        try:
+            self._start(python)
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _start(self, python):
+        self._folder = tempfile.TemporaryDirectory(prefix="fastdet-opencv-peer-")
+        folder = Path(self._folder.name)
+        job = dict(self.job, frames=str(folder / "frames.npy"))
+        np.save(job["frames"], np.stack(self.frames))
+        (folder / "job.json").write_text(json.dumps(job))
+        # stderr to a file: a pipe nobody reads could fill and stall the peer.
+        self._stderr = open(folder / "stderr.txt", "w+")  # closed in close()
+        self._process = subprocess.Popen(
+            [str(python), str(self.peer_script), str(folder / "job.json")], cwd=folder,
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, text=True,
+            bufsize=1)
+        self._reader = threading.Thread(target=self._read_replies, args=(self._process.stdout,),
+                                        name="fastdet-opencv-peer", daemon=True)
+        self._reader.start()
+        self.report = self._reply(self.start_timeout)
+
+    def time_frame(self, index):
+        """Time frame ``index`` (of ``frames``) with every thread count."""
+        replies = []
+        for threads in self.threads:
+            request = {"frame": int(index), "threads": threads, "repeat": self.repeat}
+            try:
+                self._process.stdin.write(json.dumps(request) + "\n")
+                self._process.stdin.flush()
+            except OSError:  # the peer has gone: its reply says why
+                pass
+            replies.append((threads, self._reply(self.frame_timeout)))
+        # Recorded once the frame is complete: a failure leaves no partial frame.
+        for threads, reply in replies:
+            for mode, seconds in reply["seconds"].items():
+                self._seconds.setdefault((mode, threads), []).append(seconds)
+        self._indices.append(int(index))
+
+    def results(self):
+        """One :class:`PipelineResult` per thread count and mode, on the frames timed."""
+        results = []
+        for threads in self.threads if self.report else ():
+            for mode, windows in self.report["windows_per_frame"].items():
+                label = "same windows" if mode == "same_windows" else "native multiscale"
+                threads_label = f"{threads} thread" + ("s" if threads > 1 else "")
+                results.append(PipelineResult(f"opencv {label}, {threads_label}",
+                                              self._seconds.get((mode, threads), []),
+                                              list(self._indices), windows))
+        return results
+
+    def close(self):
+        """End the peer (the end of its input stops it) and remove its files."""
+        process, self._process = self._process, None
+        if process is not None:
+            try:
+                process.stdin.close()
+            except OSError:  # it has gone already
+                pass
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+            self._reader.join(timeout=10)  # it stops at the end of the peer's output
+            process.stdout.close()
+        if self._stderr is not None:
+            self._stderr.close()
+            self._stderr = None
+        if self._folder is not None:
+            self._folder.cleanup()
+            self._folder = None
+
+    def _read_replies(self, stream):
+        for line in stream:
+            self._replies.put(line)
+        self._replies.put(None)
+
+    def _reply(self, timeout):
+        try:
+            line = self._replies.get(timeout=timeout)
+        except queue.Empty:
+            self._process.kill()  # it may be stuck: closing its input would not end it
+            raise InputError(f"OpenCV peer did not answer within {timeout:g} s") from None
+        if line is None:
+            code = self._process.wait()
+            self._stderr.seek(0)
+            tail = " ".join(self._stderr.read().strip().splitlines()[-3:])
+            raise InputError(f"OpenCV peer failed (exit {code}): {tail}")
+        return json.loads(line)
+

@@ -138,22 +138,25 @@ def time_fastdet(detector, frames, repeat=3, name="fastdet"):
     return time_fastdet_in_turn([(name, detector)], frames, repeat)[0]
 
 
-def time_fastdet_in_turn(named_detectors, frames, repeat=3):
+def time_fastdet_in_turn(named_detectors, frames, repeat=3, also=None):
     """:func:`time_fastdet` of several detectors, frame by frame in turn.
 
     Each frame gets the first detector's ``repeat`` calls, then the next
     detector's, and so on, each detector with its own thread counts set
     (Numba's and OpenCV's, which :class:`~fastdet.detector.detector.Detector`
-    sets process-wide when it is made).  A slow spell of a shared machine
-    then hits all of them alike: timed one after the other, a minute apart,
-    two threads came out 0.86x, 2.2x and 1.6x one thread in three runs of
-    ``fastdet bench`` on one machine (AMD EPYC Zen 4, 2 vCPUs).
+    sets process-wide when it is made), then ``also``.  A slow spell of a
+    shared machine then hits all of them alike: timed one after the other, a
+    minute apart, two threads came out 0.86x, 2.2x and 1.6x one thread in
+    three runs of ``fastdet bench`` on one machine (AMD EPYC Zen 4, 2 vCPUs).
 
     Parameters
     ----------
     named_detectors : sequence of (str, Detector)
     frames : list of ndarray
     repeat : int
+    also : callable, optional
+        Called with each frame's index after the detectors' calls on it
+        (e.g. :meth:`~fastdet.bench.peers.OpenCVPeer.time_frame`).
 
     Returns
     -------
@@ -164,9 +167,11 @@ def time_fastdet_in_turn(named_detectors, frames, repeat=3):
     for timer in timers:
         timer.use_threads()
         timer.detector(frames[0])
-    for frame in frames:
+    for index, frame in enumerate(frames):
         for timer in timers:
             timer.time_frame(frame, repeat)
+        if also is not None:
+            also(index)
     return [timer.result() for timer in timers]
 
 
