@@ -28,6 +28,16 @@ from .plan import search_band
 #: frame sizes of the default search (see ScaleScorer._start_frame).
 _MAX_BUFFERS = 16
 
+#: How far a thread's share of whole scales may exceed an even share of the
+#: frame's resized pixels before the largest scales are cut into row tasks.
+#: Cutting balances finer but costs kernel calls, GIL hand-overs and a wait
+#: for the rows before the windows: with the default search, whose two
+#: largest scales hold 27 % of the pixels each, two threads on whole scales
+#: (shares within 0.1 % of even) were 1.58x and 1.53x one thread against
+#: 1.54x and 1.46x with those two scales cut in halves (medians of 12 and 10
+#: rounds timed in turn, whole scales faster in 11 and 9; AMD EPYC Zen 4).
+BALANCE_TOLERANCE = 0.1
+
 #: Names of the timed stages, in pipeline order.
 STAGES = ("resize_convert", "cells", "blocks_score", "colour_maps", "heat", "label", "total")
 
@@ -224,21 +234,25 @@ class ScaleScorer:
     def bands(self, plans, threads):
         """A frame's scoring tasks for ``threads`` threads, costliest first.
 
-        With one thread, one ``"whole"`` task per scale.  With more, a scale
-        costing more than ``1 / (2 * threads)`` of the frame's resized pixels
-        (the 48-px scale of the default search: 45 % of them) is cut into
-        ``"rows"`` tasks of whole colour tiles, which threads compute at the
-        same time, and one ``"windows"`` task scoring all its windows after
-        them.  The threads take the next task as they finish one.
+        One ``"whole"`` task per scale, when the threads, each taking the
+        costliest task left as it finishes one, end within
+        :data:`BALANCE_TOLERANCE` of an even share of the frame's resized
+        pixels (always with one thread; with two on the default search).
+        Otherwise a scale costing more than ``1 / (2 * threads)`` of those
+        pixels is cut into ``"rows"`` tasks of whole colour tiles, which
+        threads compute at the same time, and one ``"windows"`` task scoring
+        all its windows after them.
         """
         ppc = self.options.pixels_per_cell
         used = [((plan.grid[0] - 1) * plan.step_cells * ppc + WINDOW) * plan.scaled_size[0]
                 for plan in plans]
         total = sum(used)
+        cut = (threads > 1 and total
+               and _longest_share(used, threads) > (1 + BALANCE_TOLERANCE) * total / threads)
         tasks = []
         for index, plan in enumerate(plans):
             count = 1
-            if threads > 1 and total:
+            if cut:
                 count = math.ceil(used[index] * 2 * threads / total)
             height = used[index] // plan.scaled_size[0]
             align = self._row_alignment(plan)
@@ -333,6 +347,14 @@ class ScaleScorer:
         # One kernel call for the three parts (see score_window_rows).
         self._work(plan).score_windows(scores, first, stop)
         timings["blocks_score"] += time.perf_counter() - t0
+
+
+def _longest_share(costs, threads):
+    """The largest total a thread gets when each takes the costliest task left."""
+    shares = [0] * threads
+    for cost in sorted(costs, reverse=True):
+        shares[shares.index(min(shares))] += cost
+    return max(shares)
 
 
 class _ScaleWork:

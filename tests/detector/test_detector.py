@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from fastdet.detector import scoring
 from fastdet.detector.config import (
     PREVIOUS_SCALES,
     PUBLISHED_SCALES,
@@ -151,16 +152,21 @@ def test_box_filter_applies_size_aspect_and_horizon(random_model):
     assert detector.box_finder.box_filter(boxes, (1280, 720)).tolist() == [True, False, False, False, True]
 
 
-def test_threaded_and_serial_detectors_agree_exactly(data_dir):
+@pytest.mark.parametrize("cut_scales", [False, True])
+def test_threaded_and_serial_detectors_agree_exactly(data_dir, cut_scales, monkeypatch):
     import cv2
     import numba
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("NUMBA_NUM_THREADS caps the detector at one thread")
+    if cut_scales:  # the two largest scales in row tasks, as with more threads
+        monkeypatch.setattr(scoring, "BALANCE_TOLERANCE", -1.0)
     frame = cv2.imread(str(data_dir / "test_images" / "test1.jpg"))
     serial = Detector(threads=1)
     try:
         threaded = Detector(threads=2)
         assert threaded.threads == 2
+        kinds = {task.kind for task in threaded.bands((1280, 720))}
+        assert kinds == ({"whole", "rows", "windows"} if cut_scales else {"whole"})
         for _ in range(2):  # the second call reuses the scales' buffers
             a, b = serial.hits(frame), threaded.hits(frame)
             assert a.windows_scored == b.windows_scored > 0
@@ -266,21 +272,29 @@ def test_shape_correction_scales_about_the_centre(random_model):
     assert out[1].tolist() == [0, 20, 50, 40]       # clipped to the frame
 
 
-def test_two_thread_tasks_cut_the_largest_scale_into_whole_tiles(random_model):
+def test_tasks_are_whole_scales_unless_the_threads_would_be_unbalanced(random_model):
     detector = Detector(random_model, threads=1, preload=False)
     plans = detector.plans((1280, 720))
-    single = detector.scorer.bands(plans, 1)
-    assert sorted(task.index for task in single) == list(range(len(plans)))
-    assert {task.kind for task in single} == {"whole"}
-    tasks = detector.scorer.bands(plans, 2)
+    # One thread, and two on the default search (whose whole scales split evenly).
+    for threads in (1, 2):
+        tasks = detector.scorer.bands(plans, threads)
+        assert sorted(task.index for task in tasks) == list(range(len(plans)))
+        assert {task.kind for task in tasks} == {"whole"}
+    # Three threads: whole scales (the two largest 27 % of the pixels each) would leave
+    # one thread 37 % of the frame against an even third, so the scales are cut.
+    used = [((plan.grid[0] - 1) * plan.step_cells * 8 + 64) * plan.scaled_size[0]
+            for plan in plans]
+    assert scoring._longest_share(used, 2) / (sum(used) / 2) < 1 + scoring.BALANCE_TOLERANCE
+    assert scoring._longest_share(used, 3) / (sum(used) / 3) > 1 + scoring.BALANCE_TOLERANCE
+    tasks = detector.scorer.bands(plans, 3)
     largest = max(range(len(plans)),
                   key=lambda i: plans[i].scaled_size[0] * plans[i].scaled_size[1])
     rows = sorted((task.first, task.stop) for task in tasks
                   if task.index == largest and task.kind == "rows")
     assert len(rows) == 2
     plan = plans[largest]
-    used = (plan.grid[0] - 1) * plan.step_cells * 8 + 64
-    assert rows[0][0] == 0 and rows[0][1] == rows[1][0] and rows[1][1] == used
+    assert rows[0][0] == 0 and rows[0][1] == rows[1][0]
+    assert rows[1][1] == used[largest] // plan.scaled_size[0]  # every row the windows cover
     assert rows[0][1] % detector.scorer._row_alignment(plan) == 0
     # A cut scale's windows are scored after all of its rows.
     for position, task in enumerate(tasks):
@@ -288,6 +302,12 @@ def test_two_thread_tasks_cut_the_largest_scale_into_whole_tiles(random_model):
             assert all(other.kind != "rows" or other.index != task.index
                        for other in tasks[position + 1:])
     assert any(task.kind == "windows" and task.index == largest for task in tasks)
+
+
+def test_longest_share_gives_each_task_to_the_least_loaded_thread():
+    assert scoring._longest_share([5, 4, 3, 3, 3], 2) == 10   # 5+3 | 4+3+3
+    assert scoring._longest_share([1, 1, 1, 1], 4) == 1
+    assert scoring._longest_share([9, 1], 3) == 9
 
 
 def test_a_failing_task_fails_the_frame_without_hanging(random_model, monkeypatch):
@@ -299,8 +319,10 @@ def test_a_failing_task_fails_the_frame_without_hanging(random_model, monkeypatc
     detector.hits(frame)
     original = detector.scorer.run
 
+    last = len(detector.plans((1280, 720))) - 1
+
     def run(task, *args):
-        if task.kind == "rows" and task.first > 0:
+        if task.index == last:  # the frame's last task, whichever thread takes it
             raise RuntimeError("task failed")
         return original(task, *args)
 

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from fastdet.detector import scoring
 from fastdet.detector.detector import Detector
 
 #: Threads calling the one detector at once, and passes each makes over the frames.
@@ -71,11 +72,15 @@ def test_concurrent_calls_match_serial_calls(frames, pool_threads):
 
 
 
-def test_threads_sharing_a_new_frame_size_match_one_thread():
+@pytest.mark.parametrize("cut_scales", [False, True])
+def test_threads_sharing_a_new_frame_size_match_one_thread(cut_scales, monkeypatch):
     """The first frame of a size, whose work arrays the threads sharing it make as they
     start on its scales: two threads once each made their own array of a scale, and its
     windows were scored from the one that held only its own rows (found when the
-    arrays started as zeros; stale memory of an earlier detector had hidden it)."""
+    arrays started as zeros; stale memory of an earlier detector had hidden it).
+    ``cut_scales``: the largest scales in row tasks, as with more threads."""
+    if cut_scales:
+        monkeypatch.setattr(scoring, "BALANCE_TOLERANCE", -1.0)
     rng = np.random.default_rng(1)
     try:
         for _ in range(24):
