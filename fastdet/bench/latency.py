@@ -118,8 +118,7 @@ class _OpenCVInTurn:
             notes.append("OpenCV peer skipped: it needs 8-pixel cells")
             return
         log("starting the OpenCV HOGDescriptor peer (its own environment) ...")
-        self.peer = OpenCVPeer(frames, plans, threads, repeat)
-        self._guarded(self.peer.start)
+        self._guarded(self._start, frames, plans, threads, repeat)
 
     def __call__(self, index):
         if self.peer is not None:
@@ -132,12 +131,19 @@ class _OpenCVInTurn:
         self.peer.close()
         return self.peer.results(), self.peer.report
 
+    def _start(self, frames, plans, threads, repeat):
+        # Made here, not before the guard: the job names the training data,
+        # which a bench of the user's own video may not have.
+        self.peer = OpenCVPeer(frames, plans, threads, repeat)
+        self.peer.start()
+
     def _guarded(self, step, *args):
         try:
             step(*args)
         except (InputError, OSError) as exc:
             self.notes.append(f"OpenCV peer skipped: {exc}")
-            self.peer.close()
+            if self.peer is not None:
+                self.peer.close()
             self.peer = None
 
 

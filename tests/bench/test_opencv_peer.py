@@ -232,3 +232,13 @@ def test_a_peer_that_fails_to_start_is_an_input_error_and_leaves_nothing(model, 
         peer.start()
     assert peer._process is None and peer._folder is None
     assert peer.results() == []
+
+
+def test_missing_training_data_skips_the_peer_with_a_note(model, peer_log, tmp_path,
+                                                          monkeypatch):
+    # A bench of the user's own video needs no shared data; only OpenCV's SVM does.
+    monkeypatch.setenv("FASTDET_DATA", str(tmp_path / "no-data"))
+    run = run_benchmark(numbered_frames(2), threads=(1,), repeat=1, reference_frames=0,
+                        opencv=True, model=model, log=lambda line: None)
+    assert [r.name for r in run.results] == ["fastdet 1 thread"]
+    assert len(run.notes) == 1 and "shared data not found" in run.notes[0]
