@@ -22,15 +22,17 @@ from pathlib import Path
 
 from ._version import __version__
 
-#: CPU seconds each family took to compile (empty cache, a process of its
-#: own, Numba's own helpers included), measured on an AMD EPYC (Zen 3, AVX2)
-#: on 2026-11-28, mean of two runs, with the collector held back during
-#: compiles (:mod:`fastdet.kernels.compile_gc`) and no reshape or
-#: integer-power implementations compiled.  :func:`split_families` balances
-#: two processes with these weights.
-COMPILE_WEIGHTS = {"label": 4.2, "track": 3.5, "split": 3.35, "hog_api": 2.8, "score": 2.5,
-                   "hog": 1.8, "colour": 1.7, "heat": 1.5, "resize": 1.45, "refine": 1.45,
-                   "convert": 0.75, "smooth": 0.45}
+#: Seconds each family took to compile (empty cache, a process of its own,
+#: Numba's own helpers included), measured on an AMD EPYC (Zen 4, AVX2 build)
+#: on 2026-11-28, median of three runs, with the collector held back during
+#: compiles (:mod:`fastdet.kernels.compile_gc`), no reshape or integer-power
+#: implementations compiled, and only the variants a detection runs (see
+#: ``_colour_maps``, ``_score_window_rows`` and ``_cell_rows_u8_fast``).  The
+#: families that did not change since the Zen 3 figures took 1.07-1.28 times
+#: those here.  :func:`split_families` balances two processes with these weights.
+COMPILE_WEIGHTS = {"label": 4.93, "track": 4.48, "split": 4.02, "hog_api": 3.34, "score": 2.64,
+                   "hog": 1.82, "colour": 1.82, "heat": 1.71, "refine": 1.66, "resize": 1.58,
+                   "convert": 0.8, "smooth": 0.5}
 
 #: The families every detection with the default feature options runs.
 DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "heat", "label", "refine")

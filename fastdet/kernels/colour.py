@@ -595,6 +595,16 @@ def _box_rows(flat, row_bytes, factor, box_flat, box_w, oy0, oy1):
         _box_pixels(flat, row_bytes, factor, scale, box_flat, box_w, oy, blocks * _BOX_BLOCK)
 
 
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
+def _scalar_tile_row(flat, row_bytes, lut, tile, y0, out):
+    """One tile row's sums by per-pixel lookups, four pixels at a time where
+    the tile allows."""
+    if tile % 4 == 0:
+        _tile_row_quads(flat, row_bytes, lut, tile, y0, out)
+    else:
+        _tile_row_pixels(flat, row_bytes, lut, tile, y0, out)
+
+
 # -- driver --------------------------------------------------------------------
 #: The bin-table path the CPU Numba compiles for has, as
 #: :mod:`fastdet.kernels._llvm` finds its features (honouring NUMBA_CPU_NAME /
@@ -605,8 +615,39 @@ def _box_rows(flat, row_bytes, factor, box_flat, box_w, oy0, oy1):
 _CAN_AVX512BW = HAVE_AVX512BW
 _CAN_AVX2 = HAVE_AVX2 and not HAVE_AVX512BW
 
+#: The best tile-sum path this CPU has: the only one _colour_maps compiles
+#: for a ``path`` of None.
+NATIVE_TILE_PATH = PATH_AVX512 if _CAN_AVX512BW else PATH_AVX2 if _CAN_AVX2 else PATH_SCALAR
+
 #: The tile-sum path colour_maps asks for (tests set it to PATH_SCALAR too).
-TILE_PATH = PATH_AVX512 if _CAN_AVX512BW else PATH_AVX2 if _CAN_AVX2 else PATH_SCALAR
+TILE_PATH = NATIVE_TILE_PATH
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _native_tile_row(flat, row_bytes, lut, table, tile, y0, columns, out):
+    """One tile row's sums on this CPU's best path (:data:`NATIVE_TILE_PATH`)."""
+    if _CAN_AVX512BW:
+        _tile_row_bins(flat, row_bytes, lut, table, tile, y0, columns, out)
+    elif _CAN_AVX2:
+        _tile_row_bins_avx2(flat, row_bytes, lut, table, tile, y0, columns, out)
+    else:
+        _scalar_tile_row(flat, row_bytes, lut, tile, y0, out)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tile_row_on_path(path, flat, row_bytes, lut, table, tile, y0, columns, out):
+    """One tile row's sums on ``path`` if this CPU has it, else by lookups;
+    returns the path taken."""
+    if path == PATH_AVX512:
+        if _CAN_AVX512BW:
+            _tile_row_bins(flat, row_bytes, lut, table, tile, y0, columns, out)
+            return PATH_AVX512
+    elif path == PATH_AVX2:
+        if _CAN_AVX2:
+            _tile_row_bins_avx2(flat, row_bytes, lut, table, tile, y0, columns, out)
+            return PATH_AVX2
+    _scalar_tile_row(flat, row_bytes, lut, tile, y0, out)
+    return PATH_SCALAR
 
 
 @njit(cache=True, nogil=True)
@@ -614,37 +655,34 @@ def _colour_maps(path, image, lut, table, tile, factor, want_tiles, want_box, ti
     """Fill ``tiles`` and ``box``; return the tile-sum path taken: ``path``
     (PATH_AVX512, PATH_AVX2 or PATH_SCALAR), or PATH_SCALAR without tiles to
     sum or where the CPU lacks that path's instructions.  A vector path needs
-    ``table``, the lut's :func:`bin_table`: the caller has checked it has one."""
+    ``table``, the lut's :func:`bin_table`: the caller has checked it has one.
+
+    ``path`` None is :data:`NATIVE_TILE_PATH`, and then the only path
+    compiled: Numba drops the branches of a ``None`` argument before typing,
+    so the detector's calls compile no per-pixel lookup loops where the CPU
+    has a vector path (about 0.75 s of the family's first compile).  An
+    integer ``path`` is chosen at run time among all
+    the paths the CPU has (the tests, a lut without a bin table).
+    """
     width = image.shape[1]
     row_bytes = width * 3
     flat = flat_view(image)
     lut_flat = flat_view(lut)
     box_h, box_w = box.shape[0], box.shape[1]
     box_flat = flat_view(box)
-    quads = tile % 4 == 0
-    usable = (path == PATH_AVX512 and _CAN_AVX512BW) or (path == PATH_AVX2 and _CAN_AVX2)
-    if not (usable and want_tiles):
-        path = PATH_SCALAR
-    columns = empty(width if path != PATH_SCALAR else 0, np.float32)
+    columns = empty(width if want_tiles else 0, np.float32)
+    taken = PATH_SCALAR
     # Box rows written so far; an int64 from the start, not the literal 0,
     # so that _box_rows is compiled once.
     done = np.int64(0)
     for ty in range(tiles.shape[0] if want_tiles else 0):
-        scalar = True
-        if _CAN_AVX512BW:
-            if path == PATH_AVX512:
-                _tile_row_bins(flat, row_bytes, lut_flat, table, tile, ty * tile, columns,
-                               tiles[ty])
-                scalar = False
-        if _CAN_AVX2:
-            if path == PATH_AVX2:
-                _tile_row_bins_avx2(flat, row_bytes, lut_flat, table, tile, ty * tile, columns,
-                                    tiles[ty])
-                scalar = False
-        if scalar and quads:
-            _tile_row_quads(flat, row_bytes, lut_flat, tile, ty * tile, tiles[ty])
-        elif scalar:
-            _tile_row_pixels(flat, row_bytes, lut_flat, tile, ty * tile, tiles[ty])
+        if path is None:
+            _native_tile_row(flat, row_bytes, lut_flat, table, tile, ty * tile, columns,
+                             tiles[ty])
+            taken = NATIVE_TILE_PATH
+        else:
+            taken = _tile_row_on_path(path, flat, row_bytes, lut_flat, table, tile, ty * tile,
+                                      columns, tiles[ty])
         if want_box:
             # The box rows whose source rows this tile row has just read.
             ready = min(box_h, (ty + 1) * tile // factor)
@@ -653,7 +691,7 @@ def _colour_maps(path, image, lut, table, tile, factor, want_tiles, want_box, ti
                 done = ready
     if want_box and box_h > done:
         _box_rows(flat, row_bytes, factor, box_flat, box_w, done, box_h)
-    return path
+    return taken
 
 
 def colour_maps(image, lut=None, tile=8, factor=0, out=(None, None)):
@@ -735,6 +773,9 @@ class ColourMapRows:
         table = bin_table(self._lut) if lut is not None else None
         self._table = np.zeros(3 * _BINS, np.float32) if table is None else table
         self._path = PATH_SCALAR if table is None else TILE_PATH
+        # None: the native path, compiled alone (see _colour_maps).
+        if self._path == NATIVE_TILE_PATH:
+            self._path = None
         # Rows a call may start or stop at: whole tiles and boxes.
         self._align = int(np.lcm(tile, max(factor, 1)))
 

@@ -573,7 +573,9 @@ def _serial_cell_rows(ppc_y, ppc_x, nbins, channels, cells_x, layout, out_flat):
     """``(kernel, args)``: ``kernel(image, first, stop, *args)`` computes uint8 cell rows."""
     bin_lut = _bin_lut(nbins)
     if _fast_path(ppc_y, ppc_x, nbins, channels):
-        return _cell_rows_u8_fast, (bin_lut, cells_x, layout, out_flat)
+        # None: three channels, compiled alone (see _cell_rows_u8_fast).
+        return _cell_rows_u8_fast, (bin_lut, cells_x, layout, out_flat,
+                                    None if channels == 3 else channels)
     return _cell_rows_u8, (ppc_y, ppc_x, nbins, bin_lut, cells_x, layout, out_flat)
 
 
@@ -1104,26 +1106,60 @@ def _scalar_cells(flat, height, row_bytes, channels, y0, ppc_y, ppc_x, cx0, cx1,
             acc[slot + uint64(bin_lut[uint64(index)])] += np.sqrt(np.float32(gx * gx + gy * gy))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _three_channel_block(head, tail, flat, height, row_bytes, y0, x0, scratch):
+    """The group block of a three-channel row, by where the group lies in it."""
+    if head and tail:
+        _block3_fl(flat, height, row_bytes, y0, x0, scratch)
+    elif head:
+        _block3_f(flat, height, row_bytes, y0, x0, scratch)
+    elif tail:
+        _block3_l(flat, height, row_bytes, y0, x0, scratch)
+    else:
+        _block3(flat, height, row_bytes, y0, x0, scratch)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _one_channel_block(head, tail, flat, height, row_bytes, y0, x0, scratch):
+    """The group block of a one-channel row, by where the group lies in it."""
+    if head and tail:
+        _block1_fl(flat, height, row_bytes, y0, x0, scratch)
+    elif head:
+        _block1_f(flat, height, row_bytes, y0, x0, scratch)
+    elif tail:
+        _block1_l(flat, height, row_bytes, y0, x0, scratch)
+    else:
+        _block1(flat, height, row_bytes, y0, x0, scratch)
+
+
 @njit(cache=True, nogil=True)
-def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out):
+def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out, channels):
     """Cell rows ``first`` .. ``stop - 1`` of the default configuration
     (nbins 9, 8x8 cells, 1 or 3 channels); same results as :func:`_cell_rows_u8`
-    up to float32 summation order."""
-    height, width, channels = image.shape
+    up to float32 summation order.
+
+    ``channels`` None: the image has 3, and only their blocks are compiled
+    (Numba drops the branches of a None argument before typing: the
+    detector's colour images compile no one-channel blocks, about 0.25 s of
+    the family's first compile).  Otherwise the image's channel count, 1 or
+    3, chosen at run time.
+    """
+    height, width = image.shape[0], image.shape[1]
+    n_channels = 3 if channels is None else channels
     flat = flat_view(image)
     nbins = _FAST_NBINS
     ppc_y, ppc_x = _FAST_PPC
-    row_bytes = width * channels
-    group = _GROUP_CELLS * ppc_x * channels
+    row_bytes = width * n_channels
+    group = _GROUP_CELLS * ppc_x * n_channels
     groups = ncx // _GROUP_CELLS
-    outputs = _GROUP_CELLS * channels
+    outputs = _GROUP_CELLS * n_channels
     # Where the block stores each (bin, cell, channel) mean.
-    slot = _SLOTS3 if channels == 3 else _SLOTS1
-    scratch = empty(_SCRATCH3 if channels == 3 else _SCRATCH1, dtype=np.float32)
+    slot = _SLOTS3 if n_channels == 3 else _SLOTS1
+    scratch = empty(_SCRATCH3 if n_channels == 3 else _SCRATCH1, dtype=np.float32)
     rest = ncx - groups * _GROUP_CELLS
-    acc = empty(max(rest, 1) * channels * (nbins + 1), dtype=np.float32)
+    acc = empty(max(rest, 1) * n_channels * (nbins + 1), dtype=np.float32)
     scale = np.float32(1.0 / (ppc_y * ppc_x))
-    c64 = uint64(channels)
+    c64 = uint64(n_channels)
     phase_step, per_phase = layout[4], layout[5]
     position_stride, channel_stride, bin_stride = layout[1], layout[2], layout[3]
     for cell_row in range(first, stop):
@@ -1137,24 +1173,10 @@ def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out):
             x0 = g * group
             head = x0 == 0
             tail = x0 + group == row_bytes
-            if channels == 3:
-                if head and tail:
-                    _block3_fl(flat, height, row_bytes, y0, x0, scratch)
-                elif head:
-                    _block3_f(flat, height, row_bytes, y0, x0, scratch)
-                elif tail:
-                    _block3_l(flat, height, row_bytes, y0, x0, scratch)
-                else:
-                    _block3(flat, height, row_bytes, y0, x0, scratch)
+            if channels is None or n_channels == 3:
+                _three_channel_block(head, tail, flat, height, row_bytes, y0, x0, scratch)
             else:
-                if head and tail:
-                    _block1_fl(flat, height, row_bytes, y0, x0, scratch)
-                elif head:
-                    _block1_f(flat, height, row_bytes, y0, x0, scratch)
-                elif tail:
-                    _block1_l(flat, height, row_bytes, y0, x0, scratch)
-                else:
-                    _block1(flat, height, row_bytes, y0, x0, scratch)
+                _one_channel_block(head, tail, flat, height, row_bytes, y0, x0, scratch)
             for cell in range(uint64(_GROUP_CELLS)):
                 position = phase * per_phase + column
                 phase += uint64(1)
@@ -1168,7 +1190,7 @@ def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out):
                         out[dest + b * bin_stride] = scratch[slot[b * uint64(outputs) + src]]
         if rest > 0:
             cx0 = groups * _GROUP_CELLS
-            _scalar_cells(flat, height, row_bytes, channels, y0, ppc_y, ppc_x, cx0, ncx, nbins,
+            _scalar_cells(flat, height, row_bytes, n_channels, y0, ppc_y, ppc_x, cx0, ncx, nbins,
                           bin_lut, acc)
             for k in range(uint64(rest)):
                 cx = uint64(cx0) + k
@@ -1185,4 +1207,4 @@ def _cell_histograms_u8_fast_parallel(image, bin_lut, bands, rows, ncx, layout, 
     # One contiguous band of cell rows per thread, as in the table path.
     for band in prange(bands):
         _cell_rows_u8_fast(image, band * rows // bands, (band + 1) * rows // bands, bin_lut, ncx,
-                           layout, out)
+                           layout, out, image.shape[2])

@@ -340,13 +340,13 @@ _normalise_l2_hys = _normalise_blocks(3)
 
 
 @njit(cache=True, fastmath=_FASTMATH, **CALLED_FROM_KERNELS_ONLY)
-def _phase_energy(cells_flat, base, nbins, length, norm_code, energy, e_base):
-    """energy[e_base + i] = sum over bins of |v| (L1 norms) or v**2 (L2 norms)."""
+def _phase_energy(cells_flat, base, nbins, length, absolute, energy, e_base):
+    """energy[e_base + i] = sum over bins of |v| (``absolute``: L1 norms) or v**2 (L2 norms)."""
     for i in range(uint64(length)):
         energy[e_base + i] = 0.0
     for b in range(uint64(nbins)):
         row = base + b * uint64(length)
-        if norm_code <= 1:
+        if absolute:
             for i in range(uint64(length)):
                 energy[e_base + i] += abs(cells_flat[row + i])
         else:
@@ -393,6 +393,12 @@ def _score_window_rows(wrapped, cells, per_phase, cpb_y, cpb_x, norm_code, eps, 
     (``tiles_per_window`` 0 switches it off): added to ``band_scores``, the
     band's rows of ``out``, from the band's rows of their maps.
 
+    ``norm_code`` is the block norm's code (``NORM_CODES``), or None for
+    L2-Hys (:func:`_norm_argument`).  Numba drops the branches of a None
+    argument before typing, so calls with None compile only the L2-Hys
+    normaliser, not all four (about 0.35 s of the family's first compile); a
+    code is chosen at run time among the four.
+
     One kernel for the three parts: each call from Python takes the GIL
     back when it returns (see :func:`score_window_rows`).  The HOG part's
     code is here rather than in a function of its own that this one calls:
@@ -417,11 +423,17 @@ def _score_window_rows(wrapped, cells, per_phase, cpb_y, cpb_x, norm_code, eps, 
         first_block = first_row * step
         stop_block = (stop_row - 1) * step + n
         # Per cell of the band's block rows: the sum a block norm is built from.
+        # A None norm_code is L2-Hys, the only norm then compiled (see the
+        # docstring): every test of it starts with ``norm_code is None``.
+        if norm_code is None:
+            absolute = False
+        else:
+            absolute = norm_code <= 1
         energy = empty(rows * channels * length, dtype=np.float32)
         for cy in range(first_block, stop_block + cpb_y - 1):
             for c in range(channels):
                 base = uint64((cy * channels + c) * nbins * length)
-                _phase_energy(cells_flat, base, nbins, length, norm_code, energy,
+                _phase_energy(cells_flat, base, nbins, length, absolute, energy,
                               uint64((cy * channels + c) * length))
         per_channel = uint64(cpb_y * cpb_x * nbins)
         # Whole vectors past the last feature: the window dots read that far.
@@ -429,7 +441,7 @@ def _score_window_rows(wrapped, cells, per_phase, cpb_y, cpb_x, norm_code, eps, 
         second = full(uint64(channels) * stride + lanes, 1.0, np.float32)
         eps32 = np.float32(eps)
         eps_sq = np.float32(eps * eps)
-        bias = eps32 if norm_code <= 1 else eps_sq
+        bias = eps32 if absolute else eps_sq
         row_stride = uint64(channels * nbins * length)
         e_row_stride = uint64(channels * length)
         scores = zeros((stop_row - first_row) * row_len, dtype=np.float32)
@@ -440,7 +452,7 @@ def _score_window_rows(wrapped, cells, per_phase, cpb_y, cpb_x, norm_code, eps, 
                 n_base = uint64(c) * per_channel * stride
                 s_base = uint64(c) * stride
                 for p0 in range(uint64(0), stride, lanes):
-                    if norm_code == 3:
+                    if norm_code is None or norm_code == 3:
                         _normalise_l2_hys(cells_flat, c_base, row_stride, uint64(length), k,
                                           uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy,
                                           e_base, e_row_stride, p0, bias, eps_sq, normalised,
@@ -511,10 +523,17 @@ def _add_hog_scores_phase_parallel(cells, per_phase, cpb_y, cpb_x, norm_code, ep
                            out, no_map, no_weights, 1, 1, no_map, 0, 1)
 
 
+def _norm_argument(norm):
+    """``norm_code`` of :func:`_score_window_rows` for a block norm name: None for
+    L2-Hys (the default options' norm, compiled alone), else its code."""
+    return None if norm == "L2-Hys" else NORM_CODES[norm]
+
+
 # The arguments of _score_window_rows that switch a part off (empty arrays: nothing is
-# ever written to them).
-_NO_HOG = (np.zeros((0, 0, 0, 0), np.float32), np.zeros((0, 0, 0, 0), np.float32), 1, 1, 1, 0,
-           float(EPS), np.zeros((0, 0, 0), np.float32), 1)
+# ever written to them).  The norm is None, as the detector's calls have it, so
+# that a scale without HOG features needs no other compiled version.
+_NO_HOG = (np.zeros((0, 0, 0, 0), np.float32), np.zeros((0, 0, 0, 0), np.float32), 1, 1, 1,
+           None, float(EPS), np.zeros((0, 0, 0), np.float32), 1)
 _NO_SPATIAL = (np.zeros((0, 0), np.float32), np.zeros((0, 0), np.float32), 1, 1)
 _NO_TILES = (np.zeros((0, 0), np.float32), 0, 1)
 
@@ -580,7 +599,7 @@ def add_hog_scores_from_phase_cells(cells, cells_x, cells_per_block, norm, weigh
     # The cell rows the band's windows cover.
     wrapped = cells[first * step_cells:(stop - 1) * step_cells + n + cpb_y - 1]
     weights = np.ascontiguousarray(weights, dtype=np.float32)
-    args = (cells, per_phase, cpb_y, cpb_x, NORM_CODES[norm], float(eps), weights,
+    args = (cells, per_phase, cpb_y, cpb_x, _norm_argument(norm), float(eps), weights,
             int(step_cells), out)
     bands = min(numba.get_num_threads(), stop - first) if parallel and window_rows is None else 1
     if bands > 1:
@@ -663,7 +682,7 @@ class WindowRowScorer:
             # Cell rows a band reads: from its first window's to its last
             # window's last block's last cell.
             self._hog = (cells, step_cells, weights.shape[0] + cpb_y - 1,
-                         (cells, per_phase, cpb_y, cpb_x, NORM_CODES[norm], float(EPS),
+                         (cells, per_phase, cpb_y, cpb_x, _norm_argument(norm), float(EPS),
                           np.ascontiguousarray(weights, dtype=np.float32), step_cells))
         self._spatial = None
         if spatial is not None:

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
+from fastdet.kernels import score as score_module
 from fastdet.kernels.blocks import NORM_CODES, normalize_blocks
 from fastdet.kernels.hog import cell_histograms, phase_layout_shape, to_phase_layout
 from fastdet.kernels.score import (add_hog_scores, add_hog_scores_from_cells,
@@ -215,4 +216,25 @@ def test_parallel_phase_scores_equal_serial(norm, step):
                                     parallel=True)
     np.testing.assert_array_equal(parallel, serial)
     np.testing.assert_allclose(serial, naive_scores(cells, (2, 2), norm, weights, step),
+                               rtol=1e-5, atol=2e-5)
+
+
+def test_l2_hys_as_none_scores_as_its_code(monkeypatch):
+    """L2-Hys reaches the kernel as None (only its normaliser compiled); as its
+    code the kernel chooses among the four at run time: the same scores, bit
+    for bit, and another code gives other scores."""
+    rng = np.random.default_rng(3)
+    cells = rng.random((23, 41, 3, 9), dtype=np.float32)
+    weights = rng.normal(size=(7, 7, 108)).astype(np.float32)
+    phase = to_phase_layout(cells, 2, phase_scoring_pad(41, 2, (2, 2)))
+    grid = (window_count(22, 7, 2), window_count(40, 7, 2))
+    scores = {}
+    for name, code in (("none", None), ("code", NORM_CODES["L2-Hys"]), ("l2", NORM_CODES["L2"])):
+        monkeypatch.setattr(score_module, "_norm_argument", lambda norm, code=code: code)
+        scores[name] = np.zeros(grid, np.float32)
+        add_hog_scores_from_phase_cells(phase.copy(), 41, (2, 2), "L2-Hys", weights, 2,
+                                        scores[name])
+    np.testing.assert_array_equal(scores["none"], scores["code"])
+    assert not np.array_equal(scores["none"], scores["l2"])
+    np.testing.assert_allclose(scores["none"], naive_scores(cells, (2, 2), "L2-Hys", weights, 2),
                                rtol=1e-5, atol=2e-5)

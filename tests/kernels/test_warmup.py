@@ -108,3 +108,38 @@ def test_detector_waits_for_its_preload():
     frame = np.zeros((720, 1280, 3), np.uint8)
     assert len(detector(frame)) == 0
     assert detector._loader is None  # joined by the first detection
+
+
+_TYPED_CALLEES = r"""
+import json
+from fastdet.kernels import colour, hog, score, warmup
+
+warmup.warm(["hog", "score", "colour"], processes=1)
+typed = {}
+for kernel in (hog._cell_rows_u8_fast, score._score_window_rows, colour._colour_maps):
+    [signature] = kernel.signatures
+    typemap = kernel.overloads[signature].type_annotation.typemap
+    typed[kernel.__name__] = sorted({str(t) for t in typemap.values()
+                                     if "intrinsic" in str(t) or "Dispatcher" in str(t)})
+print(json.dumps({"typed": typed, "vector_tiles": colour.NATIVE_TILE_PATH != colour.PATH_SCALAR}))
+"""
+
+
+def test_a_detection_compiles_only_the_variants_it_runs(tmp_path):
+    """In a fresh process with an empty cache: the detection's cell kernel types
+    only the three-channel blocks, its scorer only the L2-Hys normaliser, and
+    its colour maps no per-pixel lookup loop where the CPU has a vector path
+    (each a branch Numba drops before typing; see the kernels' docstrings)."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    completed = subprocess.run([sys.executable, "-c", _TYPED_CALLEES], capture_output=True,
+                               text=True, env=env, timeout=900)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    result = json.loads(completed.stdout.strip().splitlines()[-1])
+    cells = " ".join(result["typed"]["_cell_rows_u8_fast"])
+    assert "_group_block_c3_" in cells and "_group_block_c1" not in cells, cells
+    normalisers = [t for t in result["typed"]["_score_window_rows"] if "_normalise_blocks" in t]
+    assert normalisers == ["Function(<intrinsic _normalise_blocks_3>)"], normalisers
+    colour = " ".join(result["typed"]["_colour_maps"])
+    lookups = any(loop in colour for loop in ("_scalar_tile_row", "_tile_row_quads",
+                                              "_tile_row_pixels"))
+    assert lookups != result["vector_tiles"], colour
