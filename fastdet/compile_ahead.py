@@ -27,12 +27,13 @@ from ._version import __version__
 #: on 2026-11-28, median of three runs, with the collector held back during
 #: compiles (:mod:`fastdet.kernels.compile_gc`), no reshape or integer-power
 #: implementations compiled, and only the variants a detection runs (see
-#: ``_colour_maps``, ``_score_window_rows`` and ``_cell_rows_u8_fast``).  The
+#: ``_colour_maps``, ``_score_window_rows`` and ``_cell_rows_u8_fast``; the
+#: per-pixel tails of the conversion and the cells are the family "tails").  The
 #: families that did not change since the Zen 3 figures took 1.07-1.28 times
 #: those here.  :func:`split_families` balances two processes with these weights.
-COMPILE_WEIGHTS = {"label": 4.93, "track": 4.48, "split": 4.02, "hog_api": 3.34, "score": 2.64,
-                   "hog": 1.82, "colour": 1.82, "heat": 1.71, "refine": 1.66, "resize": 1.58,
-                   "convert": 0.8, "smooth": 0.5}
+COMPILE_WEIGHTS = {"label": 4.93, "track": 4.48, "split": 4.02, "hog_api": 3.34, "tails": 2.74,
+                   "score": 2.64, "colour": 1.82, "heat": 1.71, "refine": 1.66, "resize": 1.58,
+                   "hog": 1.12, "smooth": 0.5, "convert": 0.32}
 
 #: The families every detection with the default feature options runs.
 DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "heat", "label", "refine")
@@ -58,8 +59,11 @@ CACHE_KEY_PREFIX = f"fastdet-{__version__}-numba-"
 #: Seconds of each family's weight that a process compiling several pays
 #: once: Numba's set-up for its first compile and the small helpers several
 #: families call.  Compiled one after another in one process, each family
-#: after the first took about this much less than its weight (0.25-0.46 s).
-SHARED_SECONDS = 0.35
+#: after the first took about this much less than its weight: 0.25-0.46 s on
+#: the Zen 3 of the first weights, 0-0.17 s on the Zen 4 of these (convert
+#: 0.17-0.18 s after another family against 0.32 s alone, HOG 0.95-1.12 s
+#: against 1.11-1.15 s).
+SHARED_SECONDS = 0.15
 
 
 def group_seconds(names):

@@ -163,22 +163,33 @@ def _hls_block(typingctx, src, src_offset, dest, dest_offset):
 
 
 @njit(cache=True, nogil=True)
-def _bgr_to_hls(image, out, vector):
-    """``out`` (C-contiguous) = HLS of ``image``, whose rows are runs of
-    3-byte pixels (pixel stride 3, channel stride 1; any row stride).
-    ``vector`` False does every pixel with the scalar rule (for tests)."""
+def _bgr_to_hls(image, out):
+    """``out`` (C-contiguous) = HLS of the whole 16-pixel blocks of every row of
+    ``image``, whose rows are runs of 3-byte pixels (pixel stride 3, channel
+    stride 1; any row stride).  The pixels past the last whole block are
+    :func:`_hls_pixels`' (its own kernel: compiled only for widths that have
+    them, not the default search's 960, 1280 or 1920 pixels)."""
     height, width = image.shape[0], image.shape[1]
     src_row = np.int64(image.strides[0])
     dst_row = np.int64(width) * 3
-    blocks = width // _BLOCK if vector else 0
+    blocks = width // _BLOCK
     for y in range(height):
         s0 = np.int64(y) * src_row
         d0 = np.int64(y) * dst_row
         for k in range(blocks):
             _hls_block(image, s0 + k * _BLOCK_BYTES, out, d0 + k * _BLOCK_BYTES)
+
+
+@njit(cache=True, nogil=True)
+def _hls_pixels(image, out, first, vector):
+    """``out[:, first:]`` = HLS of ``image[:, first:]`` one pixel at a time, with
+    the rule of OpenCV's code for each pixel; ``vector`` False: the scalar rule
+    for every pixel (for tests)."""
+    height, width = image.shape[0], image.shape[1]
+    for y in range(height):
         row = image[y]
         dest = out[y]
-        for x in range(blocks * _BLOCK, width):
+        for x in range(first, width):
             # OpenCV converts each row in chunks of _CV_CHUNK pixels, SIMD
             # for whole runs of _CV_LANES and its scalar code for the rest.
             start = (x // _CV_CHUNK) * _CV_CHUNK
@@ -278,7 +289,11 @@ def bgr_to_hls(image, out=None):
     """
     image, out = _check(image, out)
     if image.size:
-        _bgr_to_hls(image, out, True)
+        blocked = image.shape[1] // _BLOCK * _BLOCK
+        if blocked:
+            _bgr_to_hls(image, out)
+        if blocked < image.shape[1]:
+            _hls_pixels(image, out, blocked, True)
     return out
 
 
@@ -286,5 +301,5 @@ def _bgr_to_hls_scalar(image, out=None):
     """As :func:`bgr_to_hls` with the scalar rule only (for tests)."""
     image, out = _check(image, out)
     if image.size:
-        _bgr_to_hls(image, out, False)
+        _hls_pixels(image, out, 0, False)
     return out

@@ -574,9 +574,17 @@ def _serial_cell_rows(ppc_y, ppc_x, nbins, channels, cells_x, layout, out_flat):
     bin_lut = _bin_lut(nbins)
     if _fast_path(ppc_y, ppc_x, nbins, channels):
         # None: three channels, compiled alone (see _cell_rows_u8_fast).
-        return _cell_rows_u8_fast, (bin_lut, cells_x, layout, out_flat,
-                                    None if channels == 3 else channels)
+        fast = (bin_lut, cells_x, layout, out_flat, None if channels == 3 else channels)
+        if cells_x % _GROUP_CELLS == 0:
+            return _cell_rows_u8_fast, fast
+        return _fast_cell_rows_and_tail, (fast, (bin_lut, cells_x, layout, out_flat))
     return _cell_rows_u8, (ppc_y, ppc_x, nbins, bin_lut, cells_x, layout, out_flat)
+
+
+def _fast_cell_rows_and_tail(image, first, stop, fast, tail):
+    """The vector kernel's cells, then the last cell column of an odd grid."""
+    _cell_rows_u8_fast(image, first, stop, *fast)
+    _cell_rows_u8_tail(image, first, stop, *tail)
 
 
 @functools.lru_cache(maxsize=None)
@@ -1135,8 +1143,9 @@ def _one_channel_block(head, tail, flat, height, row_bytes, y0, x0, scratch):
 @njit(cache=True, nogil=True)
 def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out, channels):
     """Cell rows ``first`` .. ``stop - 1`` of the default configuration
-    (nbins 9, 8x8 cells, 1 or 3 channels); same results as :func:`_cell_rows_u8`
-    up to float32 summation order.
+    (nbins 9, 8x8 cells, 1 or 3 channels), the cells of whole groups of
+    _GROUP_CELLS (the last one of an odd ``ncx`` is :func:`_cell_rows_u8_tail`'s);
+    same results as :func:`_cell_rows_u8` up to float32 summation order.
 
     ``channels`` None: the image has 3, and only their blocks are compiled
     (Numba drops the branches of a None argument before typing: the
@@ -1156,9 +1165,6 @@ def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out, channels):
     # Where the block stores each (bin, cell, channel) mean.
     slot = _SLOTS3 if n_channels == 3 else _SLOTS1
     scratch = empty(_SCRATCH3 if n_channels == 3 else _SCRATCH1, dtype=np.float32)
-    rest = ncx - groups * _GROUP_CELLS
-    acc = empty(max(rest, 1) * n_channels * (nbins + 1), dtype=np.float32)
-    scale = np.float32(1.0 / (ppc_y * ppc_x))
     c64 = uint64(n_channels)
     phase_step, per_phase = layout[4], layout[5]
     position_stride, channel_stride, bin_stride = layout[1], layout[2], layout[3]
@@ -1188,23 +1194,43 @@ def _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out, channels):
                     src = cell * c64 + c
                     for b in range(uint64(nbins)):
                         out[dest + b * bin_stride] = scratch[slot[b * uint64(outputs) + src]]
-        if rest > 0:
-            cx0 = groups * _GROUP_CELLS
-            _scalar_cells(flat, height, row_bytes, n_channels, y0, ppc_y, ppc_x, cx0, ncx, nbins,
-                          bin_lut, acc)
-            for k in range(uint64(rest)):
-                cx = uint64(cx0) + k
-                position = (cx % layout[4]) * layout[5] + cx // layout[4]
-                for c in range(c64):
-                    dest = row_base + position * layout[1] + c * layout[2]
-                    base = (k * c64 + c) * uint64(nbins + 1)
-                    for b in range(uint64(nbins)):
-                        out[dest + b * layout[3]] = acc[base + b] * scale
+
+
+@njit(cache=True, nogil=True)
+def _cell_rows_u8_tail(image, first, stop, bin_lut, ncx, layout, out):
+    """The cells of rows ``first`` .. ``stop - 1`` past :func:`_cell_rows_u8_fast`'s
+    whole groups, one element at a time.  A kernel of its own: compiled only for
+    images with an odd number of cell columns, which the default search's
+    scales at 960, 1280 and 1920 pixels do not have."""
+    height, width, channels = image.shape
+    flat = flat_view(image)
+    nbins = _FAST_NBINS
+    ppc_y, ppc_x = _FAST_PPC
+    cx0 = ncx // _GROUP_CELLS * _GROUP_CELLS
+    rest = ncx - cx0
+    acc = empty(max(rest, 1) * channels * (nbins + 1), dtype=np.float32)
+    scale = np.float32(1.0 / (ppc_y * ppc_x))
+    c64 = uint64(channels)
+    if rest == 0:
+        return
+    for cell_row in range(first, stop):
+        row_base = uint64(cell_row) * layout[0]
+        _scalar_cells(flat, height, width * channels, channels, cell_row * ppc_y, ppc_y, ppc_x,
+                      cx0, ncx, nbins, bin_lut, acc)
+        for k in range(uint64(rest)):
+            cx = uint64(cx0) + k
+            position = (cx % layout[4]) * layout[5] + cx // layout[4]
+            for c in range(c64):
+                dest = row_base + position * layout[1] + c * layout[2]
+                base = (k * c64 + c) * uint64(nbins + 1)
+                for b in range(uint64(nbins)):
+                    out[dest + b * layout[3]] = acc[base + b] * scale
 
 
 @njit(cache=True, parallel=True)
 def _cell_histograms_u8_fast_parallel(image, bin_lut, bands, rows, ncx, layout, out):
     # One contiguous band of cell rows per thread, as in the table path.
     for band in prange(bands):
-        _cell_rows_u8_fast(image, band * rows // bands, (band + 1) * rows // bands, bin_lut, ncx,
-                           layout, out, image.shape[2])
+        first, stop = band * rows // bands, (band + 1) * rows // bands
+        _cell_rows_u8_fast(image, first, stop, bin_lut, ncx, layout, out, image.shape[2])
+        _cell_rows_u8_tail(image, first, stop, bin_lut, ncx, layout, out)

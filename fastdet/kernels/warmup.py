@@ -137,6 +137,19 @@ def _warm_track():
     sum_squared_difference(thumb, thumb)
 
 
+def _warm_tails():
+    from .convert import bgr_to_hls
+    from .hog import cell_histograms, phase_layout_shape
+    from .score import phase_scoring_pad
+    # A band of a 16-pixel block and 4 pixels more, and an image of 7 cell
+    # columns: the per-pixel kernels after the vector ones' whole blocks.
+    bgr_to_hls(_frame_band(4, 20))
+    image = np.ascontiguousarray(_frame_band(24, 56))
+    pad = phase_scoring_pad(7, 2, (2, 2))
+    out = np.empty(phase_layout_shape(3, 7, 3, 9, 2, pad), np.float32)
+    cell_histograms(image, (8, 8), 9, out=out, phase_step=2, phase_pad=pad)
+
+
 def _warm_hog_api():
     from .blocks import normalize_blocks
     from .hog import cell_histograms
@@ -150,11 +163,15 @@ def _warm_hog_api():
 #: "label", the heaviest); "split" the full-resolution split of a blob
 #: holding two cars; "smooth" the video pipeline's heat smoothing (every
 #: default run) and "track" its patch tracking (``--track`` only: 3.5 s of
-#: compile against 0.45 s, so the two are apart).
+#: compile against 0.45 s, so the two are apart); "tails" the per-pixel
+#: kernels for the pixels past the colour conversion's whole vector blocks
+#: and the cells past the cell kernel's whole groups (frame widths such as
+#: 1366, not the default search at 640-1920 pixels of 16:9 frames).
 FAMILIES = {"convert": _warm_convert, "resize": _warm_resize, "hog": _warm_hog,
             "score": _warm_score, "colour": _warm_colour, "heat": _warm_heat,
             "label": _warm_label, "refine": _warm_refine, "split": _warm_split,
-            "smooth": _warm_smooth, "track": _warm_track, "hog_api": _warm_hog_api}
+            "smooth": _warm_smooth, "track": _warm_track, "hog_api": _warm_hog_api,
+            "tails": _warm_tails}
 
 #: One dispatcher per family whose cache entry tells whether the family was
 #: compiled before (see :func:`cold_families`): module, name.
@@ -165,7 +182,8 @@ _PROBES = {"convert": ("convert", "_bgr_to_hls"), "resize": ("resize", "_resize"
            "split": ("label", "split_component"),
            "smooth": ("heat", "decay_heat"),
            "track": ("patch", "mask_overlap_search"),
-           "hog_api": ("blocks", "_normalize_serial")}
+           "hog_api": ("blocks", "_normalize_serial"),
+           "tails": ("convert", "_hls_pixels")}
 
 
 def _probe(name):

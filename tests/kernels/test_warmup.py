@@ -61,12 +61,12 @@ def test_cold_families_compiled_by_two_processes(tmp_path):
     process; a second run finds them all in the cache."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     command = [sys.executable, "-c", "import sys; from fastdet.cli import console_main; "
-               "console_main(sys.argv[1:])", "warmup", "--families", "convert", "heat",
+               "console_main(sys.argv[1:])", "warmup", "--families", "resize", "heat",
                "--processes", "2"]
     first = subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
     assert first.returncode == 0, first.stderr[-3000:]
     assert "compiled (helper process)" in first.stdout
-    assert "| convert | compiled" in first.stdout and "| heat | compiled" in first.stdout
+    assert "| resize | compiled" in first.stdout and "| heat | compiled" in first.stdout
     second = subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
     assert second.returncode == 0, second.stderr[-3000:]
     assert second.stdout.count("loaded from the cache") == 2, second.stdout
@@ -83,11 +83,11 @@ def test_the_helper_process_compiles_this_fastdet_not_the_working_directorys(tmp
     # This process imports the installed fastdet, as the console script does.
     command = [sys.executable, "-c", "import sys; sys.path = [p for p in sys.path if p not in "
                "('', '.')]; from fastdet.cli import console_main; console_main(sys.argv[1:])",
-               "warmup", "--families", "convert", "heat", "--processes", "2"]
+               "warmup", "--families", "resize", "heat", "--processes", "2"]
     completed = subprocess.run(command, capture_output=True, text=True, env=env, cwd=tmp_path,
                                timeout=900)
     assert completed.returncode == 0, completed.stderr[-3000:]
-    assert "| convert | compiled (helper process) |" in completed.stdout, completed.stdout
+    assert "| resize | compiled (helper process) |" in completed.stdout, completed.stdout
 
 
 def test_warmup_command_reports_every_family(capsys):
@@ -112,11 +112,12 @@ def test_detector_waits_for_its_preload():
 
 _TYPED_CALLEES = r"""
 import json
-from fastdet.kernels import colour, hog, score, warmup
+from fastdet.kernels import colour, convert, hog, score, warmup
 
-warmup.warm(["hog", "score", "colour"], processes=1)
+warmup.warm(["hog", "score", "colour", "convert"], processes=1)
 typed = {}
-for kernel in (hog._cell_rows_u8_fast, score._score_window_rows, colour._colour_maps):
+for kernel in (hog._cell_rows_u8_fast, score._score_window_rows, colour._colour_maps,
+               convert._bgr_to_hls):
     [signature] = kernel.signatures
     typemap = kernel.overloads[signature].type_annotation.typemap
     typed[kernel.__name__] = sorted({str(t) for t in typemap.values()
@@ -129,7 +130,9 @@ def test_a_detection_compiles_only_the_variants_it_runs(tmp_path):
     """In a fresh process with an empty cache: the detection's cell kernel types
     only the three-channel blocks, its scorer only the L2-Hys normaliser, and
     its colour maps no per-pixel lookup loop where the CPU has a vector path
-    (each a branch Numba drops before typing; see the kernels' docstrings)."""
+    (each a branch Numba drops before typing; see the kernels' docstrings);
+    the per-pixel tails of the cells and the colour conversion are kernels of
+    their own (family "tails"), which the warm-up's shapes do not need."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     completed = subprocess.run([sys.executable, "-c", _TYPED_CALLEES], capture_output=True,
                                text=True, env=env, timeout=900)
@@ -137,9 +140,25 @@ def test_a_detection_compiles_only_the_variants_it_runs(tmp_path):
     result = json.loads(completed.stdout.strip().splitlines()[-1])
     cells = " ".join(result["typed"]["_cell_rows_u8_fast"])
     assert "_group_block_c3_" in cells and "_group_block_c1" not in cells, cells
+    assert "_scalar_cells" not in cells, cells
+    assert "_hls_block" in " ".join(result["typed"]["_bgr_to_hls"])
+    assert "_hls_scalar" not in " ".join(result["typed"]["_bgr_to_hls"])
     normalisers = [t for t in result["typed"]["_score_window_rows"] if "_normalise_blocks" in t]
     assert normalisers == ["Function(<intrinsic _normalise_blocks_3>)"], normalisers
     colour = " ".join(result["typed"]["_colour_maps"])
     lookups = any(loop in colour for loop in ("_scalar_tile_row", "_tile_row_quads",
                                               "_tile_row_pixels"))
     assert lookups != result["vector_tiles"], colour
+
+
+def test_the_tails_family_compiles_the_per_pixel_tails():
+    """``fastdet warmup`` (every family) leaves nothing for a frame width whose
+    band or scales end in part of a vector block (1366 pixels, say): in a fresh
+    process, the family alone loads or compiles both tail kernels."""
+    code = ("from fastdet.kernels import convert, hog, warmup; "
+            "warmup.warm(['tails'], processes=1); "
+            "print(len(convert._hls_pixels.signatures), len(hog._cell_rows_u8_tail.signatures))")
+    completed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                               timeout=900)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    assert completed.stdout.split() == ["1", "1"], completed.stdout
