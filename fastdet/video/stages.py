@@ -396,8 +396,11 @@ def decode(clock, conveyor, source, outbox, realtime, stats, rows=None, needed=N
                 started = time.perf_counter() if started is None else started
                 first_pts = frame.pts if first_pts is None else first_pts
                 delay = started + float((frame.pts - first_pts) * source.time_base)
-                while not conveyor.stopping.is_set() and time.perf_counter() < delay:
-                    time.sleep(min(0.01, delay - time.perf_counter()))
+                # The remaining wait is read once: read twice, the clock may pass
+                # the deadline between the test and the sleep.  A stop ends it early.
+                remaining = delay - time.perf_counter()
+                if remaining > 0:
+                    conveyor.stopping.wait(remaining)
             if needed is not None and frame is not None and not needed(index):
                 # Decoded but not looked at (a reference for other frames, or any
                 # frame once the skipping stopped): it travels without its pixels.

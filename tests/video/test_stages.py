@@ -220,3 +220,57 @@ def test_cancel_stops_a_stage_started_early():
     conveyor.cancel()
     assert conveyor.aborted and time.monotonic() - started < 5
     assert inbox.qsize() == 2
+
+
+# -- pacing a file read as if live ---------------------------------------------------------
+class _PacedSource:
+    """A stand-in file source: frames 40 ms apart, read "live" (``realtime``)."""
+
+    live = False
+    start = 0
+    time_base = 1 / 1000
+    ended = None
+    frames_left_undecoded = 0
+    frames_read = 3
+
+    class damage:  # noqa: N801 - the attribute a real source carries
+        @staticmethod
+        def describe(frames_read):
+            return None
+
+    def decoded_frames(self, needed):
+        return _Frames(type("Frame", (), {"pts": pts})() for pts in (0, 40, 80))
+
+
+class _Frames(list):
+    """Decoded frames as ``decode`` reads them: iterable and closable."""
+
+    def close(self):
+        pass
+
+
+class _SteppingClock:
+    """``perf_counter`` that moves 15 ms on every read, against frames 40 ms apart.
+
+    The second frame's deadline falls between the third and the fourth read: a
+    wait that reads the clock twice (the test, then the sleep) gets a negative sleep.
+    """
+
+    def __init__(self):
+        self.now = 1000.0
+
+    def __call__(self):
+        self.now += 0.015
+        return self.now
+
+
+def test_pacing_survives_the_clock_passing_the_deadline_between_reads(monkeypatch):
+    from fastdet.video import stages
+
+    monkeypatch.setattr(stages.time, "perf_counter", _SteppingClock())
+    conveyor = Conveyor()
+    outbox = conveyor.queue(8)
+    stats = type("Stats", (), {"dropped": 0})()
+    stages.decode(stages.StageClock(), conveyor, _PacedSource(), outbox, True, stats)
+    items = [outbox.get_nowait() for _ in range(4)]
+    assert [item[0] for item in items[:3]] == [0, 1, 2] and items[3] is END
