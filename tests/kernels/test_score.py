@@ -129,6 +129,22 @@ def test_add_spatial_scores_matches_naive(parallel, map_shape, size, step):
     assert_scores_close(out, expected, 255 * np.abs(weights).sum())
 
 
+@pytest.mark.parametrize("parallel", [False, True])
+def test_a_windows_spatial_score_does_not_depend_on_its_neighbours(parallel):
+    # Windows are dotted several at a time; shifting the map by three windows
+    # regroups them, and each window's sum must stay the same bits.
+    rng = np.random.default_rng(3)
+    spatial = rng.random((40, 130, 3), dtype=np.float32) * 255
+    weights = rng.normal(scale=0.01, size=(16, 16, 3)).astype(np.float32)
+    step = 2
+    whole = np.zeros(grid_of(spatial.shape, 16, step), np.float32)
+    add_spatial_scores(spatial, weights, step, whole, parallel=parallel)
+    shifted_map = np.ascontiguousarray(spatial[:, 3 * step:])
+    shifted = np.zeros(grid_of(shifted_map.shape, 16, step), np.float32)
+    add_spatial_scores(shifted_map, weights, step, shifted, parallel=parallel)
+    np.testing.assert_array_equal(shifted, whole[:, 3:3 + shifted.shape[1]])
+
+
 def test_scores_add_up():
     # The kernels add into ``out``: HOG then spatial == their sum.
     rng = np.random.default_rng(2)
