@@ -57,9 +57,12 @@ _DOT_WINDOWS = 4
 
 def _row_window_dots(windows):
     """An intrinsic ``dots(image_flat, row_len, y0, x0, x_step, weights_flat,
-    rows, length, out_row, ox)`` adding, for each window ``i < windows``,
+    rows, length, out_row, ox, count)`` adding, for each window ``i < count``
+    (``1 <= count <= windows``),
     ``sum over r, k of image[y0 + r, x0 + i * x_step + k] * weights[r, k]``
     (flat arrays, ``row_len`` elements an image row) to ``out_row[ox + i]``.
+    With fewer than ``windows``, the missing ones repeat the last window's
+    reads and are not stored: one compiled block serves the rest of a row.
 
     The order of each window's sums is fixed in the IR, not left to LLVM:
     lane ``l`` of accumulator ``j`` adds the products of the elements
@@ -84,9 +87,9 @@ def _row_window_dots(windows):
         image, weights, out = [context.make_array(signature.args[k])(context, builder,
                                                                      args[k]).data
                                for k in (0, 5, 8)]
-        row_len, top, left, x_step, n_rows, n, ox = [
+        row_len, top, left, x_step, n_rows, n, ox, count = [
             context.cast(builder, args[k], signature.args[k], types.int64)
-            for k in (1, 2, 3, 4, 6, 7, 9)]
+            for k in (1, 2, 3, 4, 6, 7, 9, 10)]
         lanes = ir.Constant(i64, _DOT_LANES)
         per_turn = ir.Constant(i64, _DOT_LANES * _DOT_CHAINS)
         vectors = builder.udiv(n, lanes)
@@ -94,7 +97,9 @@ def _row_window_dots(windows):
         done = builder.mul(turns, per_turn)
         whole = builder.mul(vectors, lanes)
         zero = ir.Constant(vector, [0.0] * _DOT_LANES)
-        lefts = [builder.add(left, builder.mul(x_step, ir.Constant(i64, i)))
+        last = builder.sub(count, ir.Constant(i64, 1))
+        lefts = [builder.add(left, builder.mul(x_step, builder.select(
+            builder.icmp_signed("<", ir.Constant(i64, i), count), ir.Constant(i64, i), last)))
                  for i in range(windows)]
 
         def add_products(bases, w_base, offset, totals, vtype=vector):
@@ -159,34 +164,30 @@ def _row_window_dots(windows):
                     for begin in (0, width)])
             total = builder.fadd(builder.extract_element(total, ir.Constant(ir.IntType(32), 0)),
                                  values[i * per + _DOT_CHAINS])
-            slot = builder.gep(out, [builder.add(ox, ir.Constant(i64, i))])
-            builder.store(builder.fadd(builder.load(slot), total), slot)
+            with builder.if_then(builder.icmp_signed("<", ir.Constant(i64, i), count)):
+                slot = builder.gep(out, [builder.add(ox, ir.Constant(i64, i))])
+                builder.store(builder.fadd(builder.load(slot), total), slot)
         return context.get_dummy_value()
 
     def dots(typingctx, image_flat, row_len, y0, x0, x_step, weights_flat, rows, length,
-             out_row, ox):
+             out_row, ox, count):
         return (types.void(image_flat, row_len, y0, x0, x_step, weights_flat, rows, length,
-                           out_row, ox), codegen)
+                           out_row, ox, count), codegen)
 
     dots.__name__ = dots.__qualname__ = f"_row_window_dots_{windows}"
     return intrinsic(dots)
 
 
-_row_dots_1 = _row_window_dots(1)
-_row_dots_many = _row_window_dots(_DOT_WINDOWS)
+_row_dots = _row_window_dots(_DOT_WINDOWS)
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _add_grid_row(image_flat, row_len, y0, step_cols, weights_flat, rows, length, out_row):
     """One row of windows of :func:`_add_grid`, _DOT_WINDOWS at a time."""
     cols = out_row.shape[0]
-    many = cols // _DOT_WINDOWS * _DOT_WINDOWS
-    for ix in range(0, many, _DOT_WINDOWS):
-        _row_dots_many(image_flat, row_len, y0, ix * step_cols, step_cols, weights_flat, rows,
-                       length, out_row, ix)
-    for ix in range(many, cols):
-        _row_dots_1(image_flat, row_len, y0, ix * step_cols, step_cols, weights_flat, rows,
-                    length, out_row, ix)
+    for ix in range(0, cols, _DOT_WINDOWS):
+        _row_dots(image_flat, row_len, y0, ix * step_cols, step_cols, weights_flat, rows,
+                  length, out_row, ix, min(_DOT_WINDOWS, cols - ix))
 
 
 @njit(cache=True, nogil=True, inline="always")
