@@ -48,13 +48,16 @@ factor 2: 0.42 ms, about 0.5 ns per pixel, of which the tile sums take 0.23):
 * Tile sums with any other lut (or without AVX2): three scalar table
   lookups per pixel.  Vector gathers are slow on this CPU (over 1 ns per
   lookup), and LLVM cannot prove the table unaliased anyway, so they stay
-  scalar (about 1.0 ns per pixel) and the work is cutting instructions: four
-  pixels (12 bytes) come from three 32-bit words (split with shifts) plus
-  three single bytes, and each tile is summed over all its rows in registers
-  as a fixed tree of adds.  No reassociating fastmath here: LLVM would fold
-  the tree back into one long dependency chain.  (A combined table for two
-  channels, 256 KB, halves the lookups but after building it saved only 5-7
-  %.)
+  scalar (about 0.55 ms for a 1280x720 frame, tiles of 16, generic build on
+  an AMD Zen 4) and the work is cutting instructions: four pixels (12 bytes)
+  come from three 32-bit words (split with shifts) plus three single bytes,
+  and four columns' sums stay in registers down the tile row.  They add in
+  the bin-table paths' order (each column over the rows in turn, then each
+  tile's columns), so a lut with a bin table gets the same sums on every CPU;
+  a fixed tree of adds per tile, as before, was no faster (0.55 against
+  0.52 ms) and rounded its own way.  No reassociating fastmath here: LLVM
+  would then pick the order.  (A combined table for two channels, 256 KB,
+  halves the lookups but after building it saved only 5-7 %.)
 * The box mean of 16 output pixels is one block of LLVM vector IR
   (:func:`_box_block`, factors 1, 2 and 4): widen each row run to 16 bits,
   add the rows, pick each output pixel's source pixels with constant shuffles,
@@ -65,9 +68,8 @@ factor 2: 0.42 ms, about 0.5 ns per pixel, of which the tile sums take 0.23):
   loop as well; 256-bit versions of the block were slower overall.
 
 The box image is exact (sums of bytes, one rounding in the final scale).  The
-tile sums are float32 sums in a fixed order (one for the bin-table paths, one
-for the scalar lookups), so they differ from a float64 reference only by
-float32 rounding.
+tile sums are float32 sums in one fixed order on every path, so they differ
+from a float64 reference only by float32 rounding.
 """
 
 import sys
@@ -180,13 +182,12 @@ def _pixel_weight(flat, lut, i):
             + lut[_LUT2 + uint64(flat[i + uint64(2)])])
 
 
-@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
-def _quad_weight(flat, lut, i):
-    """Sum of the weights of the 4 pixels at flat[i:i + 12]."""
+@njit(cache=True, nogil=True, inline="always")
+def _four_weights(flat, lut, i):
+    """The weights of the 4 pixels at flat[i:i + 12], each ``(w0 + w1) + w2``."""
     if not _LITTLE_ENDIAN:
-        return ((_pixel_weight(flat, lut, i) + _pixel_weight(flat, lut, i + uint64(3)))
-                + (_pixel_weight(flat, lut, i + uint64(6))
-                   + _pixel_weight(flat, lut, i + uint64(9))))
+        return (_pixel_weight(flat, lut, i), _pixel_weight(flat, lut, i + uint64(3)),
+                _pixel_weight(flat, lut, i + uint64(6)), _pixel_weight(flat, lut, i + uint64(9)))
     # Bytes v0 v1 v2 | v0 v1 v2 | v0 v1 v2 | v0 v1 v2: bytes 2, 6 and 10 are
     # loaded on their own (cheaper than a shift and a mask), the rest split
     # from the three words at bytes 0, 4 and 8.  The byte loads come first so
@@ -197,48 +198,11 @@ def _quad_weight(flat, lut, i):
     a = uint64(_load_u32(flat, i))
     b = uint64(_load_u32(flat, i + uint64(4)))
     c = uint64(_load_u32(flat, i + uint64(8)))
-    p0 = (lut[a & _BYTE] + lut[_LUT1 + ((a >> uint64(8)) & _BYTE)]) + lut[_LUT2 + v2]
-    p1 = ((lut[a >> uint64(24)] + lut[_LUT1 + (b & _BYTE)])
-          + lut[_LUT2 + ((b >> uint64(8)) & _BYTE)])
-    p2 = (lut[v6] + lut[_LUT1 + (b >> uint64(24))]) + lut[_LUT2 + (c & _BYTE)]
-    p3 = (lut[(c >> uint64(8)) & _BYTE] + lut[_LUT1 + v10]) + lut[_LUT2 + (c >> uint64(24))]
-    return (p0 + p1) + (p2 + p3)
-
-
-@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
-def _tile_row_quads(flat, row_bytes, lut, tile, y0, out):
-    """out[tx] = weight sum of tile tx of the tile row starting at image row y0;
-    the tile side is a multiple of 4."""
-    t = uint64(tile)
-    quads = t >> uint64(2)
-    row = uint64(row_bytes)
-    for tx in range(uint64(out.size)):
-        base = uint64(y0) * row + tx * t * _C
-        total = np.float32(0.0)
-        for dy in range(t):
-            i = base + dy * row
-            partial = _quad_weight(flat, lut, i)
-            for q in range(uint64(1), quads):
-                partial += _quad_weight(flat, lut, i + q * uint64(12))
-            total += partial
-        out[tx] = total
-
-
-@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
-def _tile_row_pixels(flat, row_bytes, lut, tile, y0, out):
-    """Like :func:`_tile_row_quads` for any tile side, one pixel at a time."""
-    t = uint64(tile)
-    row = uint64(row_bytes)
-    for tx in range(uint64(out.size)):
-        base = uint64(y0) * row + tx * t * _C
-        total = np.float32(0.0)
-        for dy in range(t):
-            i = base + dy * row
-            partial = np.float32(0.0)
-            for dx in range(t):
-                partial += _pixel_weight(flat, lut, i + dx * _C)
-            total += partial
-        out[tx] = total
+    return ((lut[a & _BYTE] + lut[_LUT1 + ((a >> uint64(8)) & _BYTE)]) + lut[_LUT2 + v2],
+            (lut[a >> uint64(24)] + lut[_LUT1 + (b & _BYTE)])
+            + lut[_LUT2 + ((b >> uint64(8)) & _BYTE)],
+            (lut[v6] + lut[_LUT1 + (b >> uint64(24))]) + lut[_LUT2 + (c & _BYTE)],
+            (lut[(c >> uint64(8)) & _BYTE] + lut[_LUT1 + v10]) + lut[_LUT2 + (c >> uint64(24))])
 
 
 # -- tile sums from a bin table (AVX-512) -------------------------------------
@@ -362,12 +326,27 @@ def bin_table(lut):
 
 @njit(cache=True, nogil=True, inline="always")
 def _finish_tile_row(flat, row, lut, t, start, done, columns, out):
-    """The rest of a bin-table tile row: the column sums from column ``done``
-    to the last tile's end one pixel at a time (the same operations, in the
-    same order, as a vector block's lane), then each tile's columns added in
-    order."""
+    """The rest of a tile row: the column sums from column ``done`` to the last
+    tile's end one pixel at a time (the same operations, in the same order, as
+    a vector block's lane: each pixel's ``(w0 + w1) + w2``, added over the
+    rows in turn), then each tile's columns added in order.  Four columns at
+    once keep their sums in registers down the tile row; their pixels come
+    from three 32-bit words."""
     covered = uint64(out.size) * t
-    for x in range(done, covered):
+    fours = done + (covered - min(done, covered)) // uint64(4) * uint64(4)
+    for x in range(done, fours, uint64(4)):
+        s0 = s1 = s2 = s3 = np.float32(0.0)
+        for dy in range(t):
+            w0, w1, w2, w3 = _four_weights(flat, lut, start + dy * row + x * _C)
+            s0 += w0
+            s1 += w1
+            s2 += w2
+            s3 += w3
+        columns[x] = s0
+        columns[x + uint64(1)] = s1
+        columns[x + uint64(2)] = s2
+        columns[x + uint64(3)] = s3
+    for x in range(fours, covered):
         i = start + x * _C
         total = np.float32(0.0)
         for dy in range(t):
@@ -382,10 +361,10 @@ def _finish_tile_row(flat, row, lut, t, start, done, columns, out):
 
 @njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _tile_row_bins(flat, row_bytes, lut, table, tile, y0, columns, out):
-    """Like :func:`_tile_row_quads` with a bin table: sums of each image
-    column over the tile row into ``columns`` (16-pixel vector blocks, then
-    the columns of whole tiles past the last block one pixel at a time), then
-    each tile's columns added in order."""
+    """One tile row's sums with a bin table: sums of each image column over
+    the tile row into ``columns`` (16-pixel vector blocks, then the columns of
+    whole tiles past the last block one pixel at a time), then each tile's
+    columns added in order."""
     t = uint64(tile)
     row = uint64(row_bytes)
     covered = uint64(out.size) * t
@@ -596,13 +575,12 @@ def _box_rows(flat, row_bytes, factor, box_flat, box_w, oy0, oy1):
 
 
 @njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
-def _scalar_tile_row(flat, row_bytes, lut, tile, y0, out):
-    """One tile row's sums by per-pixel lookups, four pixels at a time where
-    the tile allows."""
-    if tile % 4 == 0:
-        _tile_row_quads(flat, row_bytes, lut, tile, y0, out)
-    else:
-        _tile_row_pixels(flat, row_bytes, lut, tile, y0, out)
+def _scalar_tile_row(flat, row_bytes, lut, tile, y0, columns, out):
+    """One tile row's sums by per-pixel lookups, for any lut: the vector paths'
+    order (:func:`_finish_tile_row` from the first column), so for a lut with
+    a bin table every CPU gives the same sums."""
+    row = uint64(row_bytes)
+    _finish_tile_row(flat, row, lut, uint64(tile), uint64(y0) * row, uint64(0), columns, out)
 
 
 # -- driver --------------------------------------------------------------------
@@ -631,7 +609,7 @@ def _native_tile_row(flat, row_bytes, lut, table, tile, y0, columns, out):
     elif _CAN_AVX2:
         _tile_row_bins_avx2(flat, row_bytes, lut, table, tile, y0, columns, out)
     else:
-        _scalar_tile_row(flat, row_bytes, lut, tile, y0, out)
+        _scalar_tile_row(flat, row_bytes, lut, tile, y0, columns, out)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -646,7 +624,7 @@ def _tile_row_on_path(path, flat, row_bytes, lut, table, tile, y0, columns, out)
         if _CAN_AVX2:
             _tile_row_bins_avx2(flat, row_bytes, lut, table, tile, y0, columns, out)
             return PATH_AVX2
-    _scalar_tile_row(flat, row_bytes, lut, tile, y0, out)
+    _scalar_tile_row(flat, row_bytes, lut, tile, y0, columns, out)
     return PATH_SCALAR
 
 
@@ -723,9 +701,9 @@ def colour_maps(image, lut=None, tile=8, factor=0, out=(None, None)):
     Tile sums are faster where each channel of ``lut`` is constant on aligned
     runs of 8 values (``lut[c, v] == lut[c, v & ~7]``), as the detector's lut
     is for 32 histogram bins or fewer, and Numba compiles for a CPU with
-    AVX-512BW (about four times) or AVX2 (about 1.6 times).  Both vector
-    paths add in one order; the per-pixel lookups in another; either way the
-    sums are float32.
+    AVX-512BW (about four times) or AVX2 (about 1.6 times).  Every path adds
+    in one order (float32 sums), so for such a lut all CPUs give the same
+    sums.
     """
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise ValueError(f"expected a uint8 (H, W, 3) image, got {image.dtype} {image.shape}")

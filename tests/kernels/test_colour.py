@@ -6,10 +6,10 @@ float32 rounding, i.e. within 1e-5 of the tile's sum of absolute weights (one
 wrong pixel in a tile is off by about 1 / (3 * tile**2) of it).
 
 Shapes are chosen to hit every code path: whole 16-pixel box blocks plus
-leftover pixels for factors 1, 2 and 4, the per-pixel box path (factor 3), the
-four-pixel tile path (tile a multiple of 4) and the per-pixel one (other
-tiles), images smaller than a tile or a box cell, and tile rows and box rows
-that end at different image rows.
+leftover pixels for factors 1, 2 and 4, the per-pixel box path (factor 3),
+tile rows whose columns come four at a time and one at a time, images smaller
+than a tile or a box cell, and tile rows and box rows that end at different
+image rows.
 
 Tile sums have three paths, each checked where the CPU has it (the ``path``
 fixture): the bin-table paths (AVX-512BW, else AVX2), taken when each
@@ -17,8 +17,8 @@ channel's lut is constant on aligned runs of 8 values (the detector's lut for
 32 bins or fewer), and the per-pixel table lookups for any lut.  Luts of both
 kinds are used, and vector blocks (16 pixels with AVX-512, 32 with AVX2) with
 tails of whole tiles after them (and, with AVX-512, the bottom tile row's last
-block, which would read past the image).  The bin-table paths add in one
-order, checked bit for bit (``naive_bin_order_tile_sums``).
+block, which would read past the image).  Every path adds in one order,
+checked bit for bit (``naive_bin_order_tile_sums``).
 """
 
 from __future__ import annotations
@@ -198,18 +198,18 @@ def test_bin_table_path_is_taken_only_for_binned_luts(monkeypatch, asked):
     assert kernel_maps(asked, image, lut, 8, 2, tiles, box) == vector
 
 
-@pytest.mark.parametrize("vector", [code for code in PATHS.values() if code != PATH_SCALAR])
 @pytest.mark.parametrize("shape", [(16, 32), (37, 131), (48, 100), (70, 251), (33, 1344)])
 @pytest.mark.parametrize("tile", [1, 4, 5, 8, 16, 32, 64])
-def test_bin_table_paths_add_in_their_documented_order(monkeypatch, vector, shape, tile):
-    """The vector paths' sums are the float32 sums of naive_bin_order_tile_sums,
-    bit for bit (so the AVX-512 and AVX2 paths agree); whole vector blocks and
-    tails of single columns both.  (The per-pixel lookups add in an order of
-    their own.)"""
-    monkeypatch.setattr(colour_module, "TILE_PATH", vector)
+@pytest.mark.parametrize("kind", ["bins32", "random"])
+def test_every_path_adds_in_the_documented_order(path, shape, tile, kind):
+    """Every path's sums are the float32 sums of naive_bin_order_tile_sums,
+    bit for bit (so the AVX-512, AVX2 and per-pixel paths agree, and a CPU
+    without a vector path gives the same sums); whole vector blocks, groups
+    of four columns and single columns alike, for a lut with a bin table and
+    for one without (which only the per-pixel lookups serve)."""
     rng = np.random.default_rng(shape[1] * 7 + tile)
     image = rng.integers(0, 256, shape + (3,), dtype=np.uint8)
-    lut = binned_lut(rng)
+    lut = make_lut(kind, rng)
     tiles, _ = colour_maps(image, lut, tile, 0)
     np.testing.assert_array_equal(tiles, naive_bin_order_tile_sums(image, lut, tile))
 

@@ -17,13 +17,12 @@ the bottom of this file runs every kernel family on small inputs chosen to
 reach each vector path (both channel counts and the first/last-group blocks
 of the cells, every resize path the target has, the colour bin-table paths,
 the HLS blocks, the phase scorer), checks each against its naive reference
-or OpenCV, and saves the outputs; the test then requires them bit-identical
-to the native target's, except where :data:`TARGET_ROUNDED` lists them (on
-``generic``: the colour tile sums of the scalar path): those are checked
-against the float64 reference only.  Everything else -- the cells (16, 8
-and 4 lanes), block norms, HOG and spatial scores, resize, HLS, heat and
-labels -- is bit-identical on all three.  11-20 s per target on the development machine,
-nearly all of it compiling (about 50 s for the module).
+or OpenCV, and saves the outputs; the test then requires every one of them
+bit-identical to the native target's: the cells (16, 8 and 4 lanes), block
+norms, HOG and spatial scores, colour tile sums (AVX-512, AVX2 and per-pixel
+paths), resize, HLS, heat, labels and the whole detector's margins on a real
+frame.  11-20 s per target on the development machine, nearly all of it
+compiling (about 60 s for the module).
 
 Full profile (``-m slow``, :func:`test_kernel_tests_pass_on_target`): the
 whole kernel test suite under each target, several minutes per target.
@@ -51,21 +50,13 @@ TARGETS = {
     "generic": {"NUMBA_CPU_NAME": "generic", "NUMBA_CPU_FEATURES": ""},
 }
 
-#: Outputs whose rounding belongs to the target (checked against the naive
-#: reference in the script, not against the native target's bits): only the
-#: colour tile sums of the scalar lookups (generic), a different algorithm
-#: from the bin-table paths (AVX-512 and AVX2, one order), adding in another
-#: order.  The block norms and the spatial dot products are written with a
-#: fixed summation order and no fused products (blocks.py, score.py); with
-#: LLVM's reassociating vectoriser they rounded by the target's vector width
-#: (an AMD Zen 4 with AVX-512: up to 4.5e-8 in blocks and 9.8e-4 on spatial
-#: scores of magnitude ~1e3 against its AVX2 build).
-TARGET_ROUNDED = {
-    "native": (),
-    "haswell": (),
-    # The fused scores and the detector's margins add those tile sums.
-    "generic": ("colour_tiles_binned", "fused_scores", "detector_margins"),
-}
+# Every output is required bit-identical across targets.  The block norms and
+# the spatial dot products are written with a fixed summation order and no
+# fused products (blocks.py, score.py): with LLVM's reassociating vectoriser
+# they rounded by the target's vector width (an AMD Zen 4 with AVX-512: up to
+# 4.5e-8 in blocks and 9.8e-4 on spatial scores of magnitude ~1e3 against its
+# AVX2 build).  The colour tile sums' per-pixel lookups (generic) add in the
+# bin-table paths' order (colour.py).
 
 
 def target_environment(name, cache_dir):
@@ -107,12 +98,7 @@ def test_target_matches_native_and_naive(fingerprints, target):
     _, expected = native
     assert sorted(arrays) == sorted(expected)
     for key in arrays:
-        if key in TARGET_ROUNDED[target]:
-            # Rounded its own way: only float32 rounding apart (margins of ~10).
-            np.testing.assert_allclose(arrays[key], expected[key], rtol=1e-5, atol=1e-4,
-                                       err_msg=f"{target}: {key}")
-        else:
-            np.testing.assert_array_equal(arrays[key], expected[key], err_msg=f"{target}: {key}")
+        np.testing.assert_array_equal(arrays[key], expected[key], err_msg=f"{target}: {key}")
 
 
 def test_targets_take_their_own_paths(fingerprints):
