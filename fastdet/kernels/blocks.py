@@ -50,8 +50,10 @@ def cell_energy(cells, norm_code):
 @njit(cache=True, nogil=True, inline="always")
 def _clip_sum_of_squares(row, start, stop, clip):
     """Clip ``row[start:stop]`` at ``clip`` in place; the sum of the clipped
-    values' squares, element ``i`` in running sum ``(i - start) % 4``, the four
-    then added as ``(s0 + s1) + (s2 + s3)``: independent chains, a fixed order."""
+    values' squares, element ``i`` of each whole four in running sum
+    ``(i - start) % 4`` and the last ``(stop - start) % 4`` in the first, the
+    four then added as ``(s0 + s1) + (s2 + s3)``: independent chains, a fixed
+    order."""
     s0 = s1 = s2 = s3 = np.float32(0.0)
     i = start
     while i + uint64(4) <= stop:
@@ -63,20 +65,11 @@ def _clip_sum_of_squares(row, start, stop, clip):
         s2 += v2 * v2
         s3 += v3 * v3
         i += uint64(4)
-    if i < stop:
+    while i < stop:
         v = min(row[i], clip)
         row[i] = v
         s0 += v * v
         i += uint64(1)
-    if i < stop:
-        v = min(row[i], clip)
-        row[i] = v
-        s1 += v * v
-        i += uint64(1)
-    if i < stop:
-        v = min(row[i], clip)
-        row[i] = v
-        s2 += v * v
     return (s0 + s1) + (s2 + s3)
 
 

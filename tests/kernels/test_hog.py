@@ -36,6 +36,10 @@ CONFIGS = [
     ((53, 37), (6, 8), (3, 3), 9),
     ((9, 9), (8, 8), (1, 1), 9),
     ((64, 64), (8, 8), (2, 2), 9),
+    # Block lengths of 4k + 2 and 4k + 3 (the L2-Hys sum's four running sums
+    # leave 2 and 3 over; 81 and 9 above leave 1).
+    ((41, 43), (8, 8), (1, 1), 10),
+    ((41, 43), (8, 8), (1, 1), 11),
 ]
 
 
