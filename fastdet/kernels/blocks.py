@@ -25,7 +25,7 @@ EPS = 1e-5
 # with AVX-512, 8 with AVX2) and fuse products into sums only where the CPU has
 # FMA, so each CPU would round the features its own way.  The element-wise
 # loops vectorise without it; the one long reduction (L2-Hys's second sum of
-# squares) keeps four running sums in a fixed order (_sum_of_squares).
+# squares) keeps four running sums in a fixed order (_clip_sum_of_squares).
 @njit(cache=True, nogil=True)
 def _cell_energy(cells, norm_code, energy):
     """Per cell and channel: sum of |v| (L1 norms) or of v**2 (L2 norms)."""
