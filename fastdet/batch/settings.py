@@ -12,13 +12,12 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import tempfile
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
 from ..detector.config import DetectorConfig, load_config
-from ..detector.model import DEFAULT_MODEL_NAME, load_model
+from ..detector.model import DEFAULT_MODEL_NAME, load_model, model_from_bytes
 from ..errors import InputError
 from ..video.codecs import DEFAULT_CRF, DEFAULT_PRESET
 from ..video.config import TrackConfig, load_track_config
@@ -83,10 +82,7 @@ class BatchSettings:
 
     def model(self):
         """The model, loaded (and validated) from :attr:`model_bytes`."""
-        with tempfile.TemporaryDirectory(prefix="fastdet-model-") as folder:
-            path = Path(folder) / "model.npz"
-            path.write_bytes(self.model_bytes)
-            return load_model(path)
+        return model_from_bytes(self.model_bytes, "the batch's model")
 
     @property
     def encoder(self):

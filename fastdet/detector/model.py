@@ -93,6 +93,12 @@ class Model:
 
     def save(self, path):
         """Write the model atomically to ``path`` (``.npz``)."""
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as handle:
+                handle.write(self.to_bytes())
+
+    def to_bytes(self):
+        """The bytes of the model's ``.npz`` file (what :meth:`save` writes)."""
         metadata = {
             "format": FORMAT_NAME,
             "format_version": FORMAT_VERSION,
@@ -105,9 +111,9 @@ class Model:
             "report": self.report,
         }
         blob = np.frombuffer(json.dumps(metadata, sort_keys=True).encode("utf-8"), dtype=np.uint8)
-        with atomic_path(path) as tmp:
-            with open(tmp, "wb") as handle:
-                np.savez(handle, weights=self.weights, metadata=blob)
+        buffer = io.BytesIO()
+        np.savez(buffer, weights=self.weights, metadata=blob)
+        return buffer.getvalue()
 
 
 def _digest(weights):
@@ -139,6 +145,18 @@ def load_model(path=None):
         raise ModelError(f"model file not found: {path}")
     with open(path, "rb") as handle:
         return _parse(handle, str(path))
+
+
+def model_from_bytes(data, name="the model's bytes"):
+    """Load and validate a model from the bytes of its ``.npz`` file
+    (:meth:`Model.to_bytes`); ``name`` says what they are in an error.
+
+    Raises
+    ------
+    ModelError
+        As :func:`load_model`.
+    """
+    return _parse(io.BytesIO(data), name)
 
 
 #: How every .npz (a zip archive) starts: a local file header, or the end record of an empty one.

@@ -5,7 +5,8 @@ from __future__ import annotations
 import cv2
 import pytest
 
-from fastdet.bench.frame_level import MIN_PASS_FRAMES, format_frame_level, frame_level_study, looped
+from fastdet.bench.frame_level import (MIN_PASS_FRAMES, format_frame_level, frame_level_study,
+                                       looped, paired_speedup)
 
 
 def test_looped_plays_the_frames_forward_and_back_to_the_length():
@@ -35,3 +36,12 @@ def test_frame_level_study_times_each_way_over_looped_passes(small_frames):
     assert table[2].startswith("| 1 thread |") and table[2].endswith("| 1.00x |")
     assert table[3].startswith("| 2 threads sharing each frame |")
     assert table[4].startswith("| 2 threads, 2 frames at once |")
+    assert points[0].paired_speedup == 1.0
+    assert all(p.paired_speedup > 0 for p in points)
+
+
+def test_paired_speedup_is_the_median_of_each_rounds_ratio():
+    # Rounds 2 and 3 hit a slow spell: the ratio of medians (10 / 5) would say
+    # 2x, each round's own passes say 1x, 2x and 1x.
+    assert paired_speedup([1.0, 10.0, 10.0], [1.0, 5.0, 10.0]) == 1.0
+    assert paired_speedup([4.0, 6.0, 3.0], [2.0, 2.0, 2.0]) == 2.0

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from fastdet.detector.features import FeatureLayout, FeatureOptions
-from fastdet.detector.model import FORMAT_VERSION, Model, load_model
+from fastdet.detector.model import FORMAT_VERSION, Model, load_model, model_from_bytes
 from fastdet.errors import FastdetError, ModelError
 
 
@@ -99,6 +99,29 @@ def test_save_load_round_trip(tmp_path, options):
     # A str path works too, and nothing is left beside the file.
     assert load_model(str(path)).bias == model.bias
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]
+
+
+def test_bytes_are_the_saved_file_and_load_the_same_model(saved):
+    path, model = saved
+    data = model.to_bytes()
+    # The same archive as the file but for the members' zip timestamps.
+    with zipfile.ZipFile(io.BytesIO(data)) as built, zipfile.ZipFile(path) as saved_file:
+        assert built.namelist() == saved_file.namelist()
+        for name in built.namelist():
+            assert built.read(name) == saved_file.read(name)
+    loaded = model_from_bytes(data)
+    assert (loaded.options, loaded.bias, loaded.report) == (model.options, model.bias,
+                                                            model.report)
+    np.testing.assert_array_equal(loaded.weights, model.weights)
+
+
+def test_damaged_bytes_name_what_they_are(saved):
+    _, model = saved
+    data = bytearray(model.to_bytes())
+    with pytest.raises(ModelError, match="^the batch's model is not a readable fastdet model"):
+        model_from_bytes(bytes(data[:len(data) // 2]), "the batch's model")
+    with pytest.raises(ModelError, match="^the model's bytes is not a readable fastdet model"):
+        model_from_bytes(b"\x80\x04pickle")
 
 
 def test_save_overwrites_and_file_holds_plain_arrays(saved):
