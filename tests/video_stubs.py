@@ -95,7 +95,7 @@ class BlockDetector:
         return accumulate_heat(hits.boxes, np.ones(len(hits.boxes), np.float32), height,
                                width), (0, 0)
 
-    def boxes_from_heat(self, heat, origin, frame_size):
+    def boxes_from_heat(self, heat, origin, frame_size, frame=None):
         labels, count = label_components(heat > 1.0, 8)
         if count == 0:
             return Detections.empty()

@@ -28,6 +28,7 @@ from .manifest import Manifest, input_fingerprint, is_up_to_date
 from .outputs import OutputPaths, output_paths, parts_folder, remove_leftovers
 from .progress import BatchProgress
 from .segments import parse_segment, plan_segments, segment_frames, warmup_frames
+from .split_search import replays_from_hits
 from .worker import BatchSetup, merge_task, render_task, replay_task, search_task, video_task
 
 #: Extra runs of a task that raised an unexpected exception.
@@ -50,11 +51,13 @@ class BatchRun:
         ``--segment``: frames (``"500"``) or seconds (``"30s"``) per segment.
     warmup : int, optional
         Frames of warm-up before a segment.  By default segments without
-        patch tracking are searched in parallel and their temporal steps run
-        in one pass (:mod:`fastdet.batch.split_search`), and with patch
-        tracking they warm up for as long as the ``[track]`` settings need
+        patch tracking or box snapping are searched in parallel and their
+        temporal steps run in one pass (:mod:`fastdet.batch.split_search`),
+        and otherwise they warm up for as long as the ``[track]`` settings need
         (:mod:`fastdet.batch.segments`); a number here makes every segment
-        warm up that long.
+        warm up that long.  Snapping the boxes' sides to the image
+        (``[boxes] snap_sides``, the default) reads the frames' pixels after
+        the heat smoothing, so those segments warm up too.
 
     Attributes
     ----------
@@ -74,8 +77,11 @@ class BatchRun:
         self.out_dir = Path(out_dir)
         self.force = force
         self.segment = None if segment is None else parse_segment(segment)
-        # Without patch tracking the frames to search are known ahead: no warm-up.
-        self.split_search = warmup is None and not settings.track_config.tracking
+        # Without patch tracking the frames to search are known ahead: no
+        # warm-up.  The replay feeds the temporal steps hits on blank frames,
+        # so only where they read no pixels: no patch tracking, and no box
+        # sides snapped to the image's edges ([boxes] snap_sides).
+        self.split_search = warmup is None and replays_from_hits(settings)
         if self.split_search:
             self.warmup, self.align = 0, 1
         elif warmup is None:

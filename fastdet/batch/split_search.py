@@ -18,7 +18,9 @@ pipeline of a whole-video run: its detections, track ids included, are the
 whole-video run's by construction, with no warm-up and nothing to check at
 the boundaries.  Phase 2 costs the temporal steps alone (about a tenth of a
 frame's work).  With patch tracking, whether a frame is searched depends on
-the frames before it, and segments warm up instead (:mod:`.segments`).
+the frames before it, and segments warm up instead (:mod:`.segments`); so
+they do when the boxes' sides snap to the image (``[boxes] snap_sides``,
+read after the heat smoothing, from pixels a replay does not have).
 """
 
 from __future__ import annotations
@@ -36,6 +38,13 @@ from ..video.frame_arrays import FrameConverter
 from ..video.pipeline import VideoPipeline
 from ..video.source import VideoSource
 from .job import ThrottledProgress
+
+
+def replays_from_hits(settings):
+    """Whether a batch with ``settings`` can run its segments this way: its
+    temporal steps read no pixels (no patch tracking, and no box sides
+    snapped to the frame's edges), so that hits on blank frames replay them."""
+    return not settings.track_config.tracking and not settings.detector_config.boxes.snap_sides
 
 
 def search_segment(input_path, frame_range, hits_path, options, *, detector, callback=None):
@@ -139,7 +148,13 @@ def replay_segments(hits_paths, detections_paths, options, *, detector, whole=No
     InputError
         When the segments do not follow each other, or the pipeline would
         search a frame whose hits are missing.
+    ValueError
+        For ``options`` whose temporal steps read pixels (see
+        :func:`replays_from_hits`).
     """
+    if not replays_from_hits(options):
+        raise ValueError("these settings track patches or snap box sides to the frame: "
+                         "their segments cannot be replayed from hits")
     pipeline = VideoPipeline(detector, options.track_config)
     results, expected_start, blank = [], 0, None
     with contextlib.ExitStack() as outputs:
@@ -164,7 +179,8 @@ def _replay_one(pipeline, hits_path, detections_path, everything, expected_start
     width, height = (int(v) for v in data["size"])
     if blank is None or blank.shape[:2] != (height, width):
         # The frame a pipeline is given with its hits: without patch
-        # tracking nothing reads its pixels, only its size.
+        # tracking or snapping (replays_from_hits) nothing reads its pixels,
+        # only its size.
         blank = np.zeros((height, width, 3), np.uint8)
     hits_of = _hits_by_frame(data)
     boxes, track_ids = 0, set()

@@ -24,7 +24,7 @@ from .boxes import BoxFinder
 from .config import DetectorConfig
 from .frames import as_bgr_frame
 from .model import Model, load_model
-from .plan import plan_scales
+from .plan import plan_scales, search_band
 from .scoring import STAGES, Hits, ScaleScorer, kernel_families
 
 
@@ -401,7 +401,7 @@ class Detector:
         full[y0:y0 + heat.shape[0], x0:x0 + heat.shape[1]] = heat
         return full
 
-    def boxes_from_heat(self, heat, origin, frame_size):
+    def boxes_from_heat(self, heat, origin, frame_size, frame=None):
         """Threshold, label and filter a heat map into detections.
 
         Parameters
@@ -412,9 +412,14 @@ class Detector:
             ``(x0, y0)`` of that region in the frame.
         frame_size : tuple of int
             ``(width, height)`` of the frame, for the size-relative filters.
+        frame : ndarray of uint8, shape (H, W, 3), optional
+            The BGR frame the heat is of: the boxes' sides snap to its
+            edges (``[boxes] snap_sides``), read inside the search band only.
         """
         boxes, peaks = self.box_finder.heat_components(heat, origin, frame_size)
-        return self.box_finder.finish_boxes(boxes, peaks, frame_size, heat, origin)
+        readable = search_band(self.plans(frame_size)) if frame is not None else None
+        return self.box_finder.finish_boxes(boxes, peaks, frame_size, heat, origin, frame,
+                                            readable)
 
     def warm_up(self, frame):
         """Detect once on ``frame`` so that every kernel a detection needs is loaded.
@@ -454,7 +459,7 @@ class Detector:
             t0 = time.perf_counter()
             heat, origin = self.heat_region(hits, size)
             t1 = time.perf_counter()
-            detections = self.boxes_from_heat(heat, origin, size)
+            detections = self.boxes_from_heat(heat, origin, size, frame)
             end = time.perf_counter()
             self.timings["heat"] = t1 - t0
             self.timings["label"] = end - t1

@@ -22,7 +22,7 @@ from numba import njit
 
 from .alloc import empty, zeros
 
-__all__ = ["box_heat_features"]
+__all__ = ["box_heat_features", "snap_box_sides"]
 
 
 @njit(cache=True, nogil=True)
@@ -189,3 +189,95 @@ def refined_edges(boxes, features, weights, frame_widths, out):
         out[row, 1] = min(ey1, ey2)
         out[row, 2] = max(ex1, ex2)
         out[row, 3] = max(ey1, ey2)
+
+
+@njit(cache=True, nogil=True)
+def _strongest_column(frame, centre, reach, first_row, stop_row, first_column, stop_column,
+                      smoothed, strength):
+    """The column within ``reach`` of ``centre`` (and inside ``first_column`` ..
+    ``stop_column - 1``) of the strongest vertical edges; the first of equals;
+    -1 when none lies inside or none has an edge.
+
+    ``|Sobel x|`` is ``|V[c + 1] - V[c - 1]|`` with ``V`` the column-smoothed
+    intensity ``I[r - 1] + 2 I[r] + I[r + 1]``: each row's ``V`` is made
+    once (into ``smoothed``) and read twice, row by row along the frame's
+    memory.
+    """
+    low = max(centre - reach, first_column)
+    high = min(centre + reach, stop_column - 1)
+    count = high - low + 1
+    if count <= 0:
+        return -1
+    for k in range(count):
+        strength[k] = 0
+    for row in range(first_row, stop_row):
+        for k in range(count + 2):
+            column = low - 1 + k
+            total = np.int32(0)
+            for c in range(3):
+                total += (np.int32(frame[row - 1, column, c]) + 2 * np.int32(frame[row, column, c])
+                          + np.int32(frame[row + 1, column, c]))
+            smoothed[k] = total
+        for k in range(count):
+            strength[k] += abs(smoothed[k + 2] - smoothed[k])
+    best, best_column = np.int64(0), -1
+    for k in range(count):
+        if strength[k] > best:
+            best, best_column = strength[k], low + k
+    return best_column
+
+
+@njit(cache=True, nogil=True)
+def snap_box_sides(frame, boxes, fraction, limits, out):
+    """Move each box's left and right edges to the strongest vertical image edge nearby.
+
+    A car's sides are the strongest vertical edges about its box (its body
+    against the road or the next lane); the heat places them only as finely
+    as the window grid.  For each edge, the columns within ``fraction`` of
+    the box width of it (at least one) are scored by the sum of ``|Sobel
+    x|`` of the intensity ``B + G + R`` over the middle half of the box's
+    rows, and the edge moves to the best one (the first of equals): the left
+    edge onto it, the right edge (exclusive) just past it.  A box whose
+    edges would cross, or that has no such rows, is left as it is, and so
+    is a side with no gradient within reach (flat image).
+
+    Parameters
+    ----------
+    frame : ndarray of uint8, shape (H, W, 3)
+    boxes : ndarray of int64, shape (N, 4)
+        ``x1, y1, x2, y2`` (exclusive ends) in frame pixels.
+    fraction : float
+    limits : ndarray of int64, shape (4,)
+        ``x0, y0, x1, y1``: the only part of the frame read (a caller may
+        have converted only the rows the detector searches); the Sobel
+        stencil stays inside it.
+    out : ndarray of int64, shape (N, 4)
+    """
+    # Per side at most 2 * reach + 1 candidates, reach at most half a box.
+    smoothed = empty(frame.shape[1] + 3, dtype=np.int32)
+    strength = empty(frame.shape[1] + 1, dtype=np.int64)
+    first_column = max(limits[0], 0) + 1
+    stop_column = min(limits[2], frame.shape[1]) - 1
+    first_limit = max(limits[1], 0) + 1
+    stop_limit = min(limits[3], frame.shape[0]) - 1
+    for i in range(boxes.shape[0]):
+        x1, y1, x2, y2 = boxes[i, 0], boxes[i, 1], boxes[i, 2], boxes[i, 3]
+        for k in range(4):
+            out[i, k] = boxes[i, k]
+        width, height = x2 - x1, y2 - y1
+        first_row = max(y1 + height // 4, first_limit)
+        stop_row = min(y2 - height // 4, stop_limit)
+        if width < 2 or first_row >= stop_row:
+            continue
+        reach = max(int(fraction * width), 1)
+        left = _strongest_column(frame, x1, reach, first_row, stop_row, first_column,
+                                 stop_column, smoothed, strength)
+        right = _strongest_column(frame, x2, reach, first_row, stop_row, first_column,
+                                  stop_column, smoothed, strength)
+        # Each side on its own: a side without an edge in reach stays.
+        new_x1 = left if left >= 0 else x1
+        new_x2 = right + 1 if right >= 0 else x2
+        if new_x1 < new_x2:
+            out[i, 0] = new_x1
+            out[i, 2] = new_x2
+

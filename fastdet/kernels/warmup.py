@@ -103,11 +103,13 @@ def _warm_label():
 
 
 def _warm_refine():
-    from .refine import box_heat_features, refined_edges
+    from .refine import box_heat_features, refined_edges, snap_box_sides
     boxes = np.array([[2, 4, 16, 20]], np.int64)
     features = np.empty((1, 11))
     box_heat_features(_two_blob_heat(), 0, 0, boxes, 1.0, 40, 24, np.array([0.5]), features)
     refined_edges(boxes, features, np.zeros((4, 11)), np.array([40.0]), np.empty((1, 4)))
+    snap_box_sides(np.ascontiguousarray(_frame_band(24, 40)), boxes, 0.1,
+                   np.array([0, 0, 40, 24], np.int64), np.empty((1, 4), np.int64))
 
 
 def _warm_split():

@@ -118,7 +118,9 @@ def tune(model, sources, annotations, base_config=None, grid=None, log=None):
     for number, (source, truth_of) in enumerate(paired_sources(sources, annotations)):
         for key, frame in annotated_frames(source, truth_of):
             # Keyed by source too: two videos may both have a frame0010.
-            frames[number, key] = (scoring.hits(frame), (frame.shape[1], frame.shape[0]))
+            # The frame too: the refined boxes' sides snap to its edges
+            # ([boxes] snap_sides).
+            frames[number, key] = (scoring.hits(frame), (frame.shape[1], frame.shape[0]), frame)
             truth[number, key] = truth_of[key]
     results = []
     for threshold, heat_threshold, weighting, fraction in itertools.product(
@@ -152,10 +154,10 @@ def _refined(model, base, frames, truth, best):
     """``best`` with a box refinement fitted to its blobs (None without samples)."""
     config = _config(base, best)
     detector = Detector(model, config)
-    blobs = {key: (*_blobs(detector, hits, size, best.decision_threshold), size)
-             for key, (hits, size) in frames.items()}
+    blobs = {key: (*_blobs(detector, hits, size, best.decision_threshold), size, frame)
+             for key, (hits, size, frame) in frames.items()}
     samples = refinement_samples(detector.box_finder, {
-        key: (boxes, heat, origin, size) for key, ((boxes, _), heat, origin, size)
+        key: (boxes, heat, origin, size) for key, ((boxes, _), heat, origin, size, _)
         in blobs.items()}, truth)
     weights = fit_refinement(samples)
     if not len(weights):
@@ -164,8 +166,8 @@ def _refined(model, base, frames, truth, best):
     finder = BoxFinder(dataclasses.replace(config, boxes=dataclasses.replace(
         config.boxes, refine=weights)))
     predictions = {}
-    for key, ((boxes, peaks), heat, origin, size) in blobs.items():
-        detections = finder.finish_boxes(boxes, peaks, size, heat, origin)
+    for key, ((boxes, peaks), heat, origin, size, frame) in blobs.items():
+        detections = finder.finish_boxes(boxes, peaks, size, heat, origin, frame)
         predictions[key] = (detections.xyxy, detections.score)
     report = evaluate(predictions, truth)
     return dataclasses.replace(best, precision=report.precision, recall=report.recall,
@@ -236,7 +238,7 @@ def _evaluate(model, base, frames, truth, threshold, heat_threshold, weighting, 
         boxes=dataclasses.replace(base.boxes, refine=()))
     detector = Detector(model, config)
     blobs = {key: (_blobs(detector, hits, size, threshold)[0], size)
-             for key, (hits, size) in frames.items()}
+             for key, (hits, size, _) in frames.items()}
     out = []
     for width_scale, height_scale, center_dy in shapes:
         shaped = BoxFinder(dataclasses.replace(config, boxes=dataclasses.replace(

@@ -104,7 +104,7 @@ class VideoPipeline:
     detector : fastdet.Detector
         Anything with the detector's ``hits(frame)``,
         ``heat_region(hits, size)`` and ``boxes_from_heat(heat, origin,
-        size)`` methods.
+        size, frame)`` methods.
     config : TrackConfig, optional
         Temporal settings; defaults built in (detection on every frame,
         exponential heat smoothing, stable ids).
@@ -343,7 +343,7 @@ class VideoPipeline:
         if hits is None:
             hits = in_detector(detector.hits, frame)
         if not self.config.tracking:
-            self._tracks.associate(self._detect(hits, size, in_detector), frame)
+            self._tracks.associate(self._detect(hits, size, in_detector, frame), frame)
             return in_detector.seconds
         tracked = self._tracks.tracked_boxes()
         everything = Detections.empty()
@@ -351,19 +351,19 @@ class VideoPipeline:
             # The detector's own view, from all hits and unsmoothed, confirms
             # and refits the followed vehicles independently of the tracker.
             heat, origin = in_detector(detector.heat_region, hits, size)
-            everything = in_detector(detector.boxes_from_heat, heat, origin, size)
+            everything = in_detector(detector.boxes_from_heat, heat, origin, size, frame)
         # New vehicles are searched for outside the tracked boxes only.
-        detections = self._detect(hits_outside(hits, tracked), size, in_detector)
+        detections = self._detect(hits_outside(hits, tracked), size, in_detector, frame)
         self._tracks.merge(detections, everything, frame)
         self._scene.set_reference(frame, thumbnail)
         return in_detector.seconds
 
-    def _detect(self, hits, size, in_detector):
+    def _detect(self, hits, size, in_detector, frame):
         heat, origin = in_detector(self.detector.heat_region, hits, size)
         heat, origin = self._smoothed_heat(heat, origin)   # the tracker's time
         #: The smoothed heat over a region of the last fully searched frame, and its origin.
         self.last_heat = (heat, origin)
-        return in_detector(self.detector.boxes_from_heat, heat, origin, size)
+        return in_detector(self.detector.boxes_from_heat, heat, origin, size, frame)
 
     def _smoothed_heat(self, heat, origin):
         if self.config.heat_smoothing == "none":

@@ -142,7 +142,7 @@ def detect_figure(frame_bgr, detector, path, ground_truth=None):
     # The detector's own stages, called one by one to keep what each produced.
     hits = detector.hits(frame)
     heat_region, origin = detector.heat_region(hits, size)
-    detections = detector.boxes_from_heat(heat_region, origin, size)
+    detections = detector.boxes_from_heat(heat_region, origin, size, frame)
     heat = np.zeros((height, width), np.float32)
     heat[origin[1]:origin[1] + heat_region.shape[0],
          origin[0]:origin[0] + heat_region.shape[1]] = heat_region

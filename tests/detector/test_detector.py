@@ -354,3 +354,36 @@ def test_hits_do_not_depend_on_the_frame_sizes_seen_before(threads):
     # A process fed endless new sizes keeps the plans of the last few only.
     assert len(seasoned._plans) == len(seasoned._all_windows) == PLANNED_SIZES
     assert len(seasoned._bands) <= PLANNED_SIZES
+
+
+def test_box_sides_snap_to_the_frame_inside_the_search_band_only(random_model, data_dir):
+    import cv2
+
+    frame = cv2.imread(str(data_dir / "test_images" / "test1.jpg"))
+    size = (frame.shape[1], frame.shape[0])
+    snapping = Detector(random_model, threads=1)
+    plain = Detector(random_model, DetectorConfig(boxes=BoxConfig(snap_sides=0.0)), threads=1)
+    shaped = Detector(random_model, DetectorConfig(boxes=BoxConfig(refine=())), threads=1)
+    # A blob over the car on the right of test1, taller than the search band:
+    # the middle half of its refined box's rows reaches below the band.
+    heat = np.zeros((720, 1280), np.float32)
+    heat[380:620, 800:1000] = 5.0
+    band = plan_scales(snapping.config, random_model.options, size)
+    first, stop = min(p.roi[1] for p in band), max(p.roi[3] for p in band)
+    assert 380 + 60 < stop < 620 - 60
+    noisy = frame.copy()
+    rng = np.random.default_rng(0)
+    noisy[:first] = rng.integers(0, 256, noisy[:first].shape, dtype=np.uint8)
+    noisy[stop:] = rng.integers(0, 256, noisy[stop:].shape, dtype=np.uint8)
+    unsnapped = plain.boxes_from_heat(heat, (0, 0), size, frame).xyxy
+    snapped = snapping.boxes_from_heat(heat, (0, 0), size, frame).xyxy
+    assert len(snapped) == 1 and snapped[0, 1::2].tolist() == unsnapped[0, 1::2].tolist()
+    top, bottom = snapped[0, 1], snapped[0, 3]
+    assert bottom - (bottom - top) // 4 > stop
+    assert snapped[0, ::2].tolist() != unsnapped[0, ::2].tolist()   # the sides moved
+    assert snapping.boxes_from_heat(heat, (0, 0), size, noisy).xyxy.tolist() == snapped.tolist()
+    # Without a frame (or with snap_sides 0) the boxes are the heat's alone,
+    # and so are boxes that were shape-corrected, not refined.
+    assert snapping.boxes_from_heat(heat, (0, 0), size).xyxy.tolist() == unsnapped.tolist()
+    assert (shaped.boxes_from_heat(heat, (0, 0), size, frame).xyxy.tolist()
+            == shaped.boxes_from_heat(heat, (0, 0), size).xyxy.tolist())

@@ -8,8 +8,8 @@ import pytest
 
 import fastdet
 from fastdet.detector.refine import LEVELS, N_FEATURES
-from fastdet.kernels.refine import box_heat_features, refined_edges
-from naive import naive_heat_features, naive_refine_boxes
+from fastdet.kernels.refine import box_heat_features, refined_edges, snap_box_sides
+from naive import naive_heat_features, naive_refine_boxes, naive_snap_box_sides
 
 
 def kernel_features(heat, origin, boxes, threshold, frame_size, levels=LEVELS):
@@ -94,3 +94,57 @@ def test_refined_edges_match_numpy(seed):
         np.testing.assert_allclose(out, want, rtol=1e-12, atol=1e-9)
         # Edges the model crossed were put back in order.
         assert (out[:, 2] >= out[:, 0]).all() and (out[:, 3] >= out[:, 1]).all()
+
+
+# -- snap_box_sides -----------------------------------------------------------
+def kernel_snap(frame, boxes, fraction, limits):
+    boxes = np.ascontiguousarray(np.asarray(boxes, np.int64).reshape(-1, 4))
+    out = np.full((len(boxes), 4), -99, np.int64)
+    snap_box_sides(np.ascontiguousarray(frame), boxes, fraction, np.array(limits, np.int64), out)
+    return out
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.05, 0.1, 0.3])
+@pytest.mark.parametrize("shape", [(3, 3), (5, 41), (37, 53), (64, 129)])
+@pytest.mark.parametrize("seed", range(3))
+def test_snapped_sides_match_scipy_sobel(fraction, shape, seed):
+    rng = np.random.default_rng(seed)
+    height, width = shape
+    frame = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
+    # Boxes around, across and outside the frame, limits inside and beyond it.
+    x1 = rng.integers(-5, width, 12)
+    y1 = rng.integers(-5, height, 12)
+    boxes = np.stack([x1, y1, x1 + rng.integers(1, width + 5, 12),
+                      y1 + rng.integers(1, height + 5, 12)], axis=1)
+    for limits in ((0, 0, width, height), (-3, -3, width + 3, height + 3),
+                   (width // 4, height // 3, width - width // 5, height - 1)):
+        got = kernel_snap(frame, boxes, fraction, limits)
+        np.testing.assert_array_equal(got, naive_snap_box_sides(frame, boxes, fraction, limits))
+
+
+def test_sides_snap_to_a_car_like_block_within_reach():
+    frame = np.full((60, 120, 3), 90, np.uint8)
+    frame[20:50, 40:81] = 200          # a bright body: edges after columns 39 and 80
+    frame[:, 100] = 255                # a pole beyond the reach
+    got = kernel_snap(frame, [[36, 18, 84, 52], [47, 18, 78, 52], [0, 0, 1, 60],
+                              [10, 18, 30, 52]], 0.1, (0, 0, 120, 60))
+    # The strongest columns are 39 and 40 (the first of equals: 39) and 80 and
+    # 81 (80, so x2 = 81).  Within reach of 47 (3 columns) the body is flat: no
+    # edge, no move.  A box one column wide, or on flat ground, stays.
+    assert got.tolist() == [[39, 18, 81, 52], [47, 18, 81, 52], [0, 0, 1, 60],
+                            [10, 18, 30, 52]]
+
+
+def test_snapping_reads_only_inside_the_limits():
+    rng = np.random.default_rng(5)
+    frame = rng.integers(0, 256, (80, 100, 3), dtype=np.uint8)
+    boxes = [[10, -40, 60, 120], [40, -20, 95, 100]]   # middle halves beyond the limits
+    limits = (0, 20, 100, 64)
+    expected = kernel_snap(frame, boxes, 0.2, limits)
+    noisy = frame.copy()
+    noisy[:20] = rng.integers(0, 256, noisy[:20].shape, dtype=np.uint8)
+    noisy[64:] = rng.integers(0, 256, noisy[64:].shape, dtype=np.uint8)
+    np.testing.assert_array_equal(kernel_snap(noisy, boxes, 0.2, limits), expected)
+    # Without the limits the same noise moves them.
+    assert not np.array_equal(kernel_snap(noisy, boxes, 0.2, (0, 0, 100, 80)),
+                              kernel_snap(frame, boxes, 0.2, (0, 0, 100, 80)))

@@ -151,3 +151,23 @@ def test_helper_detectors_are_kept_for_the_next_run_of_the_same_settings(frames,
     pipeline.reset()
     results(pipeline, frames[:6], 3)
     assert len(made) == 6 and all(h.config == pipeline.detector.config for h in made[4:])
+
+
+def test_the_pipeline_reads_only_the_rows_it_says(frames):
+    # fastdet run and batch convert only rows_read of each decoded frame: noise
+    # elsewhere must change nothing (the boxes' sides snap to image edges, read
+    # inside the search band only).
+    pipeline = VideoPipeline(Detector(threads=1), TrackConfig())
+    first, stop = pipeline.rows_read((frames[0].shape[1], frames[0].shape[0]))
+    assert 0 < first < stop < frames[0].shape[0]
+    rng = np.random.default_rng(3)
+    noisy = []
+    for frame in frames:
+        frame = frame.copy()
+        frame[:first] = rng.integers(0, 256, frame[:first].shape, dtype=np.uint8)
+        frame[stop:] = rng.integers(0, 256, frame[stop:].shape, dtype=np.uint8)
+        noisy.append(frame)
+    expected = results(pipeline, frames, 1)
+    assert sum(len(boxes) for _, boxes, _ in expected) > 30
+    pipeline.reset()
+    assert results(pipeline, noisy, 1) == expected
