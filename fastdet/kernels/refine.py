@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from .alloc import empty, zeros
+from .inner import CALLED_FROM_KERNELS_ONLY
 
 __all__ = ["box_heat_features", "snap_box_sides"]
 
@@ -191,7 +192,7 @@ def refined_edges(boxes, features, weights, frame_widths, out):
         out[row, 3] = max(ey1, ey2)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, **CALLED_FROM_KERNELS_ONLY)
 def _strongest_column(frame, centre, reach, first_row, stop_row, first_column, stop_column,
                       smoothed, strength):
     """The column within ``reach`` of ``centre`` (and inside ``first_column`` ..
