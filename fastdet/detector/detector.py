@@ -417,7 +417,10 @@ class Detector:
             edges (``[boxes] snap_sides``), read inside the search band only.
         """
         boxes, peaks = self.box_finder.heat_components(heat, origin, frame_size)
-        readable = search_band(self.plans(frame_size)) if frame is not None else None
+        readable = None
+        if frame is not None:
+            frame = as_bgr_frame(frame)   # a grey or BGRA frame too, as detection takes them
+            readable = search_band(self.plans(frame_size))
         return self.box_finder.finish_boxes(boxes, peaks, frame_size, heat, origin, frame,
                                             readable)
 

@@ -382,6 +382,13 @@ def test_box_sides_snap_to_the_frame_inside_the_search_band_only(random_model, d
     assert bottom - (bottom - top) // 4 > stop
     assert snapped[0, ::2].tolist() != unsnapped[0, ::2].tolist()   # the sides moved
     assert snapping.boxes_from_heat(heat, (0, 0), size, noisy).xyxy.tolist() == snapped.tolist()
+    # A grey or BGRA frame is taken as detection takes it; anything else is a one-line error.
+    grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+    assert (snapping.boxes_from_heat(heat, (0, 0), size, grey).xyxy.tolist()
+            == snapping.boxes_from_heat(heat, (0, 0), size,
+                                        cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)).xyxy.tolist())
+    with pytest.raises(InputError, match="uint8"):
+        snapping.boxes_from_heat(heat, (0, 0), size, frame.astype(np.float32))
     # Without a frame (or with snap_sides 0) the boxes are the heat's alone,
     # and so are boxes that were shape-corrected, not refined.
     assert snapping.boxes_from_heat(heat, (0, 0), size).xyxy.tolist() == unsnapped.tolist()
