@@ -412,9 +412,11 @@ class Detector:
             ``(x0, y0)`` of that region in the frame.
         frame_size : tuple of int
             ``(width, height)`` of the frame, for the size-relative filters.
-        frame : ndarray of uint8, shape (H, W, 3), optional
-            The BGR frame the heat is of: the boxes' sides snap to its
-            edges (``[boxes] snap_sides``), read inside the search band only.
+        frame : ndarray of uint8, optional
+            The frame the heat is of (BGR; grey and BGRA accepted, see
+            :func:`~fastdet.detector.frames.as_bgr_frame`): the refined boxes'
+            sides snap to its edges (``[boxes] snap_sides``), read inside the
+            search band only.
         """
         boxes, peaks = self.box_finder.heat_components(heat, origin, frame_size)
         readable = None
