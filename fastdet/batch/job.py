@@ -26,6 +26,7 @@ from ..files.images import write_image
 from ..kernels.reduce import smallest_positive
 from ..video.detection_files import DetectionWriter
 from ..video.frame_arrays import FrameConverter
+from ..video.horizon import resolve_video_horizon
 from ..video.pipeline import VideoPipeline
 from ..video.sink import VideoSink
 from ..video.source import VideoSource
@@ -143,7 +144,13 @@ class _ThumbnailTap:
 
 def warm_up(detector, track_config, frame):
     """Load (or compile) every kernel a video job calls: the pipeline's warm-up, through
-    the heat watch the jobs detect with (see :meth:`VideoPipeline.warm_up`)."""
+    the heat watch the jobs detect with (see :meth:`VideoPipeline.warm_up`).
+
+    An ``"auto"`` horizon is searched at the default until a video's job
+    resolves its own: a frame of noise shows none.
+    """
+    if detector.auto_horizon and detector.config.search.auto_horizon:
+        detector.resolve_horizon([])
     VideoPipeline(_HeatWatch(detector), track_config).warm_up(frame)
 
 
@@ -209,6 +216,8 @@ def process_one(input_path, outputs, options, frame_range=None, warmup_frames=0,
     pipeline = VideoPipeline(watch, options.track_config)
     with contextlib.ExitStack() as stack:
         stack.enter_context(reader)
+        # Every segment of a video resolves the same horizon: from the file's start.
+        resolve_video_horizon(detector, reader)
         guards = {start - 1} | ({end - 1} if end is not None else set())
         frames = _Frames(reader, pipeline, outputs.video is not None, guards)
         for _ in range(start - warm_start):

@@ -43,8 +43,11 @@ from .job import ThrottledProgress
 def replays_from_hits(settings):
     """Whether a batch with ``settings`` can run its segments this way: its
     temporal steps read no pixels (no patch tracking, and no box sides
-    snapped to the frame's edges), so that hits on blank frames replay them."""
-    return not settings.track_config.tracking and not settings.detector_config.boxes.snap_sides
+    snapped to the frame's edges), so that hits on blank frames replay them,
+    and its horizon is a number (an ``"auto"`` one is each video's, which
+    the segments with a warm-up resolve from the file's start)."""
+    return (not settings.track_config.tracking and not settings.detector_config.boxes.snap_sides
+            and not settings.detector_config.search.auto_horizon)
 
 
 def search_segment(input_path, frame_range, hits_path, options, *, detector, callback=None):
@@ -153,8 +156,8 @@ def replay_segments(hits_paths, detections_paths, options, *, detector, whole=No
         :func:`replays_from_hits`).
     """
     if not replays_from_hits(options):
-        raise ValueError("these settings track patches or snap box sides to the frame: "
-                         "their segments cannot be replayed from hits")
+        raise ValueError("these settings track patches, snap box sides to the frame or "
+                         "estimate the horizon: their segments cannot be replayed from hits")
     pipeline = VideoPipeline(detector, options.track_config)
     results, expected_start, blank = [], 0, None
     with contextlib.ExitStack() as outputs:

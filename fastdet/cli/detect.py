@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..files.atomic import output_folder, output_in_folder, refuse_overwriting_inputs
 from ..files.images import read_image, write_image
-from .common import add_model_options, compile_notice, make_detector
+from .common import add_model_options, compile_notice, make_detector, resolve_images_horizon
 
 
 def add_detect_parser(subparsers):
@@ -23,11 +23,16 @@ def add_detect_parser(subparsers):
 
 
 def cmd_detect(args):
-    """Print ``{"image", "boxes", "ms"}`` per image; optionally write the drawn images."""
+    """Print ``{"image", "boxes", "ms"}`` per image; optionally write the drawn images.
+
+    An ``"auto"`` horizon is one for all the images, as for a video's frames:
+    they are taken to be one camera's (see :func:`resolve_images_horizon`).
+    """
     from ..viz.draw import draw_detections
 
     detector = make_detector(args)
     targets = _drawn_image_paths(args.images, args.out_dir) if args.out_dir else None
+    resolve_images_horizon(detector, args.images)
     for index, name in enumerate(args.images):
         image = read_image(name)
         if index == 0:

@@ -11,12 +11,13 @@ vehicles carry identities (``"id"``) the tracking metrics of py-motmetrics
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from ..errors import InputError
 from ..files.images import read_image
 from .common import (add_model_options, add_schedule_options, compile_notice, make_detector,
-                     make_pipeline)
+                     make_pipeline, resolve_images_horizon)
 
 
 def add_eval_parser(subparsers):
@@ -82,6 +83,7 @@ def cmd_eval(args):
 
 
 def _detect_images(detector, image_dir, annotations):
+    resolve_images_horizon(detector, [image_dir / name for name in sorted(annotations)])
     results = {}
     for index, name in enumerate(sorted(annotations)):
         image = read_image(image_dir / name)
@@ -97,12 +99,21 @@ def _track_video(args, video, annotations, cover):
     """Detections of the annotated frames, and the tracking report when ids are given."""
     from ..video.evaluate import track_annotated_frames
 
+    from ..video.horizon import resolve_video_horizon
+    from ..video.source import VideoSource
+
     pipeline = make_pipeline(args)
+    with VideoSource(video) as source:
+        first_frame = source.first_frame
+        horizon = resolve_video_horizon(pipeline.detector, source)
+    if horizon is not None:
+        print(f"fastdet: {video}: {horizon.describe()}; searching at "
+              f"{pipeline.detector.config.search.horizon:.3f}", file=sys.stderr)
     # The pipeline's kernels too (heat smoothing, tracking), as fastdet run warms up.
     warm_up = pipeline.warm_up if hasattr(pipeline.detector, "warm_up") else None
     if warm_up is not None:
         with compile_notice():
-            warm_up(_first_frame(video))
+            warm_up(first_frame)
     tracked = track_annotated_frames(pipeline, video, annotations)
     results = {name: (d.xyxy, d.score) for name, d in tracked.items()}
     with_ids = all(obj["id"] is not None
@@ -113,10 +124,3 @@ def _track_video(args, video, annotations, cover):
 
     tracks = {name: (d.xyxy, d.track_id, d.score) for name, d in tracked.items()}
     return results, tracking_metrics(tracks, annotations, args.iou, cover)
-
-
-def _first_frame(video):
-    from ..video.source import VideoSource
-
-    with VideoSource(video) as source:
-        return source.first_frame

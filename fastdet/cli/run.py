@@ -208,6 +208,9 @@ def cmd_run(args):
             bar.close()
     written = [p for p in (out, detections_path)
                if p is not None and (str(p) == STDOUT or Path(p).exists())]
+    if stats.horizon is not None and not args.quiet and not verbose:   # verbose: logged
+        print(f"fastdet: {args.video}: {stats.horizon.describe()}; searching at "
+              f"{pipeline.detector.config.search.horizon:.3f}", file=sys.stderr)
     if stats.damage:
         print(f"fastdet: warning: {args.video}: {stats.damage}", file=sys.stderr)
     print(stats.summary(written), file=message_stream(out, detections_path), flush=True)

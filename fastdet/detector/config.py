@@ -4,7 +4,8 @@ A TOML file only lists what it changes::
 
     [search]
     decision_threshold = 0.3
-    horizon = 0.55             # the horizon row, as a fraction of the frame height
+    horizon = 0.55             # the horizon row, as a fraction of the frame height ("auto":
+                               # estimated from the lane lines, fastdet.detector.horizon)
 
     [[search.windows]]         # giving windows replaces the whole list
     size = 0.08                # window side, as a fraction of the frame height
@@ -63,9 +64,9 @@ def _is_number(value):
             and math.isfinite(value))
 
 
-def _number(name, value):
+def _number(name, value, kind="a finite number"):
     if not _is_number(value):
-        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+        raise ConfigError(f"{name} must be {kind}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -156,6 +157,12 @@ PREVIOUS_SCALES = (
     PUBLISHED_SCALES[4],
 )
 
+#: The horizon of both cameras the defaults were chosen on (a fraction of
+#: the frame height); ``[boxes] horizon_y`` goes with it.
+DEFAULT_HORIZON = 0.58
+#: ``[search] horizon = "auto"``: estimated from the frames.
+AUTO = "auto"
+
 #: The default window sizes: 32, 48, 64, 96 and 128 pixels on a 720-row
 #: frame, as fractions of the frame height (0.0444 ... 0.1778).  At 720
 #: rows the 64-pixel windows are read from the frame without resizing.
@@ -182,9 +189,15 @@ class SearchConfig:
     ----------
     windows : tuple of WindowConfig
         Window sizes of the frame-relative search.
-    horizon : float
+    horizon : float or "auto"
         Row of the horizon (the vanishing point of the road) as a fraction
-        of the frame height from the top.
+        of the frame height from the top.  ``"auto"``: estimated from the
+        camera's frames, where its lane lines meet
+        (:mod:`fastdet.detector.horizon`), before any is searched: ``fastdet
+        run``, ``eval`` and ``batch`` from each video's first frames,
+        ``detect`` from each image.  A :class:`~fastdet.Detector` searches
+        numeric horizons only: in code, resolve it first
+        (:func:`fastdet.detector.horizon.resolve_horizon`).
     band : tuple of float
         ``(low, high)``: a window's top edge lies between ``horizon + low *
         side`` and ``horizon + high * side``.  A vehicle's width is about
@@ -210,13 +223,18 @@ class SearchConfig:
     """
 
     windows: tuple = DEFAULT_WINDOWS
-    horizon: float = 0.58
+    horizon: float | str = DEFAULT_HORIZON
     band: tuple = (-0.6, -0.2)
     margin: float = 0.02
     reach: float = 10.0
     scales: tuple = ()
     reference_size: tuple = (1280, 720)
     decision_threshold: float = -0.5
+
+    @property
+    def auto_horizon(self):
+        """Whether the horizon is to be estimated from the frames (``"auto"``)."""
+        return self.horizon == AUTO
 
     def __post_init__(self):
         object.__setattr__(self, "windows", tuple(self.windows))
@@ -229,10 +247,11 @@ class SearchConfig:
         if len(size) != 2 or not all(isinstance(v, int) and v > 0 for v in size):
             raise ConfigError(f"search.reference_size must be [width, height], got {list(size)!r}")
         _number("search.decision_threshold", self.decision_threshold)
-        _number("search.horizon", self.horizon)
-        if not 0 < self.horizon < 1:
-            raise ConfigError(f"search.horizon must be in (0, 1) (a fraction of the frame "
-                              f"height), got {self.horizon!r}")
+        if self.horizon != AUTO:
+            _number("search.horizon", self.horizon, f'a number or "{AUTO}"')
+            if not 0 < self.horizon < 1:
+                raise ConfigError(f"search.horizon must be in (0, 1) (a fraction of the frame "
+                                  f"height) or \"{AUTO}\", got {self.horizon!r}")
         if (len(self.band) != 2 or not all(isinstance(v, (int, float)) and math.isfinite(v)
                                            for v in self.band)
                 or not self.band[0] <= self.band[1]):
@@ -387,6 +406,19 @@ class DetectorConfig:
     search: SearchConfig = field(default_factory=SearchConfig)
     heat: HeatConfig = field(default_factory=HeatConfig)
     boxes: BoxConfig = field(default_factory=BoxConfig)
+
+    def with_horizon(self, fraction):
+        """This configuration searched about the horizon row ``fraction``.
+
+        ``[boxes] horizon_y`` (boxes entirely above it are dropped) moves
+        with the horizon from :data:`DEFAULT_HORIZON`, the horizon it was
+        set for.
+        """
+        search = dataclasses.replace(self.search, horizon=float(fraction))
+        base = self.search.horizon if self.search.horizon != AUTO else DEFAULT_HORIZON
+        shift = (search.horizon - base) * self.search.reference_size[1]
+        boxes = dataclasses.replace(self.boxes, horizon_y=self.boxes.horizon_y + shift)
+        return dataclasses.replace(self, search=search, boxes=boxes)
 
     @classmethod
     def from_dict(cls, data, extra_sections=()):

@@ -23,6 +23,7 @@ from ..kernels.warmup import warm
 from .boxes import BoxFinder
 from .config import DetectorConfig
 from .frames import as_bgr_frame
+from .horizon import resolve_horizon
 from .model import Model, load_model
 from .plan import plan_scales, search_band
 from .scoring import STAGES, Hits, ScaleScorer, kernel_families
@@ -172,6 +173,7 @@ class Detector:
         self._detecting = threading.RLock()
         self.scorer = ScaleScorer(model)
         self.box_finder = BoxFinder(config or DetectorConfig())
+        self._requested_config = self.box_finder.config
         self._plans = {}
         self._bands = {}
         self._all_windows = {}
@@ -189,15 +191,52 @@ class Detector:
 
     @property
     def config(self):
-        """The :class:`DetectorConfig` searched with; assigning one replans every frame size."""
+        """The :class:`DetectorConfig` searched with; assigning one replans every frame size.
+
+        Its ``[search] horizon`` may be ``"auto"``: then :meth:`resolve_horizon`
+        must give it the camera's before a frame is searched.
+        """
         return self.box_finder.config
 
     @config.setter
     def config(self, config):
+        self._requested_config = config
+        self._search_with(config)
+
+    def _search_with(self, config):
         self.box_finder.config = config
         self._plans = {}
         self._bands = {}
         self._all_windows = {}
+
+    @property
+    def auto_horizon(self):
+        """Whether the configured horizon is ``"auto"`` (see :meth:`resolve_horizon`)."""
+        return self._requested_config.search.auto_horizon
+
+    def resolve_horizon(self, frames):
+        """Search at the horizon ``frames`` show, if the configured one is ``"auto"``.
+
+        Resolved from the configuration as assigned, so a detector serving
+        several cameras (videos in turn) takes each one's horizon.
+
+        Parameters
+        ----------
+        frames : iterable of ndarray
+            Frames of the camera (a video's first few, or one image); read
+            only when the horizon is ``"auto"``.
+
+        Returns
+        -------
+        HorizonEstimate or None
+            ``None`` when the configured horizon is a number.  Without lane
+            lines in enough frames the estimate's ``fraction`` is ``None`` and
+            the built-in default horizon is searched.
+        """
+        config, estimate = resolve_horizon(self._requested_config, frames)
+        if config != self.config:
+            self._search_with(config)
+        return estimate
 
     def __del__(self):
         pool = getattr(self, "_pool", None)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..kernels.score import window_count
 from .features import WINDOW
 
@@ -142,12 +143,17 @@ def plan_scales(config, options, frame_size):
     The frame-relative windows (:func:`window_regions`), or the explicit
     pixel scales (:func:`scale_regions`) when the configuration lists any.
     Regions are clipped to the frame; sizes with no whole window in the
-    frame are dropped (all of them for a frame without pixels).
+    frame are dropped (all of them for a frame without pixels).  An
+    ``"auto"`` horizon must have been resolved (a :class:`ConfigError`).
     """
+    search = config.search
+    if search.auto_horizon:
+        raise ConfigError('search.horizon "auto" is estimated from the frames by fastdet run, '
+                          'eval, detect and batch; here give a number (in code, call '
+                          'Detector.resolve_horizon(frames) first)')
     width, height = frame_size
     if width <= 0 or height <= 0:
         return ()  # no pixel, no window
-    search = config.search
     regions = (scale_regions(search, frame_size) if search.scales
                else window_regions(search, options, frame_size))
     ppc = options.pixels_per_cell

@@ -25,6 +25,7 @@ from ..errors import InputError
 from .ahead import can_look_ahead
 from .config import TrackConfig, load_track_config
 from .detection_files import DetectionWriter
+from .horizon import resolve_video_horizon
 from .memory import reuse_freed_frames
 from .pipeline import VideoPipeline
 from .sink import VideoSink
@@ -55,6 +56,8 @@ class RunStats:
     wall: float = 0.0
     #: Seconds spent loading (or compiling) the kernels before the first frame; not in ``wall``.
     warmup: float = 0.0
+    #: The estimate of an ``"auto"`` horizon (``None``: the configured one was searched).
+    horizon: object = None
     #: The signal that stopped the run early (``None``: it ran to the end).
     interrupted: int | None = None
     #: Frames left out by ``realtime`` because processing fell behind.
@@ -304,6 +307,9 @@ def process_video(source, target=None, detector=None, config=None, callback=None
                 video = stack.enter_context(VideoSource(source, first, end, timeout=timeout,
                                                         threads=plan.decoder, strict=strict))
             first_output = max(int(start), video.start)
+            # An "auto" horizon: the camera's, from the file's first frames,
+            # before anything is planned on it.
+            stats.horizon = resolve_video_horizon(pipeline.detector, video, log)
             rows = pipeline.rows_read(video.size)
             sink = writer = None
             with guard.deferred():
