@@ -98,7 +98,6 @@ def _detect_images(detector, image_dir, annotations):
 def _track_video(args, video, annotations, cover):
     """Detections of the annotated frames, and the tracking report when ids are given."""
     from ..video.evaluate import track_annotated_frames
-
     from ..video.horizon import resolve_video_horizon
     from ..video.source import VideoSource
 

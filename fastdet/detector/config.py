@@ -195,7 +195,7 @@ class SearchConfig:
         camera's frames, where its lane lines meet
         (:mod:`fastdet.detector.horizon`), before any is searched: ``fastdet
         run``, ``eval`` and ``batch`` from each video's first frames,
-        ``detect`` from each image.  A :class:`~fastdet.Detector` searches
+        ``detect`` and ``eval`` on images from all the images given.  A :class:`~fastdet.Detector` searches
         numeric horizons only: in code, resolve it first
         (:func:`fastdet.detector.horizon.resolve_horizon`).
     band : tuple of float
@@ -411,8 +411,8 @@ class DetectorConfig:
         """This configuration searched about the horizon row ``fraction``.
 
         ``[boxes] horizon_y`` (boxes entirely above it are dropped) moves
-        with the horizon from :data:`DEFAULT_HORIZON`, the horizon it was
-        set for.
+        with the horizon, from this configuration's own horizon
+        (:data:`DEFAULT_HORIZON`, the one it was set for, when that is ``"auto"``).
         """
         search = dataclasses.replace(self.search, horizon=float(fraction))
         base = self.search.horizon if self.search.horizon != AUTO else DEFAULT_HORIZON
