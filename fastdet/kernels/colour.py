@@ -754,12 +754,14 @@ class ColourMapRows:
         # None: the native path, compiled alone (see _colour_maps).
         if self._path == NATIVE_TILE_PATH:
             self._path = None
-        # Rows a call may start or stop at: whole tiles and boxes.
-        self._align = int(np.lcm(tile, max(factor, 1)))
+        # Rows a call may start or stop at: whole tiles (when there are tile
+        # sums) and boxes.
+        self._align = int(np.lcm(tile if lut is not None else 1, max(factor, 1)))
 
     def __call__(self, image, top, bottom):
         """Compute the maps of pixel rows ``top`` .. ``bottom - 1`` of ``image`` (both
-        multiples of the tile and the box factor) into :attr:`tiles` and :attr:`box`."""
+        multiples of the box factor, and of the tile when there are tile sums) into
+        :attr:`tiles` and :attr:`box`."""
         if (image.shape != self.image_shape or image.dtype != np.uint8
                 or not image.flags.c_contiguous):
             raise ValueError(f"expected a C-contiguous uint8 image of shape {self.image_shape}, "

@@ -93,3 +93,29 @@ def test_threads_sharing_a_new_frame_size_match_one_thread(cut_scales, monkeypat
             np.testing.assert_array_equal(shared.scores, serial.scores)
     finally:
         Detector(threads=1)  # restore the thread count for later tests
+
+
+def test_row_tasks_of_a_model_without_colour_histograms():
+    """Two threads cut a scale into row tasks at whole cells and spatial boxes; a
+    model without histogram features has no colour tiles for them to respect
+    (the cut at row 24 of a 32-px tile stopped such a detection with an error)."""
+    from fastdet.detector.config import BoxConfig, DetectorConfig, HeatConfig, ScaleConfig
+    from fastdet.detector.config import SearchConfig
+    from fastdet.detector.features import FeatureLayout, FeatureOptions
+    from fastdet.detector.model import Model
+
+    options = FeatureOptions(use_hog=False, spatial_size=16, hist_bins=0, color_space="RGB")
+    model = Model(np.full(FeatureLayout(options).length, 1.0 / 768, np.float32), bias=-100.0,
+                  options=options)
+    config = DetectorConfig(
+        search=SearchConfig(scales=(ScaleConfig(64, 0.5, (0, 256), (16, 144)),),
+                            reference_size=(256, 128), decision_threshold=0.0),
+        heat=HeatConfig(threshold=0.5), boxes=BoxConfig(min_size=8, horizon_y=0))
+    image = np.zeros((128, 256, 3), np.uint8)
+    image[32:96, 64:128] = 250
+    two = Detector(model, config, threads=2)
+    assert any(task.kind == "rows" for task in two.bands((256, 128)))
+    one = Detector(model, config, threads=1).hits(image)
+    hits = two.hits(image)
+    np.testing.assert_array_equal(hits.boxes, one.boxes)
+    np.testing.assert_array_equal(hits.scores, one.scores)

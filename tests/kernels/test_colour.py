@@ -410,3 +410,23 @@ def test_real_image_matches_numpy(path, real_hls, size, rows, tile, factor, kind
     values) and others."""
     image = cv2.resize(real_hls[rows[0]:rows[1]], size)
     check(image, make_lut(kind, np.random.default_rng(0)), tile, factor)
+
+
+def test_rows_without_tile_sums_need_whole_boxes_only():
+    """Without a lut there are no tile sums: rows cut at multiples of the box factor
+    (not of the tile) are allowed, and give the whole image's boxes."""
+    from fastdet.kernels.colour import ColourMapRows
+
+    rng = np.random.default_rng(5)
+    image = rng.integers(0, 256, (96, 40, 3), dtype=np.uint8)
+    whole = ColourMapRows(image.shape, None, 32, 4, (None, None))
+    whole(image, 0, 96)
+    parts = ColourMapRows(image.shape, None, 32, 4, (None, None))
+    for top in range(0, 96, 24):
+        parts(image, top, top + 24)
+    np.testing.assert_array_equal(parts.box, whole.box)
+    with pytest.raises(ValueError, match="cut tiles"):
+        parts(image, 2, 24)
+    with_tiles = ColourMapRows(image.shape, binned_lut(rng), 32, 4, (None, None))
+    with pytest.raises(ValueError, match="cut tiles"):
+        with_tiles(image, 0, 24)
