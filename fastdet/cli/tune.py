@@ -17,6 +17,9 @@ def add_tune_parser(subparsers):
     tune.add_argument("--top", type=int, default=10, help="rows of the table to print")
     tune.add_argument("--model", metavar="M", help="model file (default: bundled)")
     tune.add_argument("--config", metavar="C", help="TOML config with the scales and box filters")
+    tune.add_argument("--jitter", type=float, nargs="+", default=(), metavar="ROWS",
+                      help="also search every frame with the window grid moved up and down by "
+                           "each of ROWS rows (at 720 rows): each counts as a frame of its own")
     tune.set_defaults(handler=cmd_tune)
     return tune
 
@@ -33,8 +36,9 @@ def cmd_tune(args):
                                          *args.sources])
     check_writable(args.out)
     sources = annotated_sources(args.sources, args.annotations, args.split)
+    jitter = [sign * rows for rows in args.jitter for sign in (1, -1)]
     results = tune(load_model(args.model), sources, None, load_config(args.config),
-                   log=lambda line: print(line, file=sys.stderr))
+                   log=lambda line: print(line, file=sys.stderr), jitter=jitter)
     messages = message_stream(args.out)
     print(format_results(results, top=args.top), file=messages)
     if args.out:

@@ -22,6 +22,7 @@ from ..detector.boxes import BoxFinder
 from ..detector.config import DetectorConfig
 from ..detector.detector import Detector
 from ..detector.scoring import Hits
+from ..errors import ConfigError
 from ..evaluation.metrics import evaluate
 from .mine import annotated_frames, paired_sources
 from .refine import fit_refinement, refinement_samples
@@ -87,7 +88,7 @@ def _subset(hits, keep):
     return Hits(hits.boxes[keep], hits.scores[keep], hits.scale_index[keep], hits.windows_scored)
 
 
-def tune(model, sources, annotations, base_config=None, grid=None, log=None):
+def tune(model, sources, annotations, base_config=None, grid=None, log=None, jitter=()):
     """Grid-search the thresholds; returns results best first.
 
     Parameters
@@ -104,24 +105,38 @@ def tune(model, sources, annotations, base_config=None, grid=None, log=None):
     grid : dict, optional
         Values per parameter; defaults to :data:`DEFAULT_GRID`.
     log : callable, optional
+    jitter : iterable of float
+        Horizon shifts, in rows of a ``search.reference_size`` frame: every
+        annotated frame is also searched with the window grid moved by each
+        of them, and each (frame, shift) counts as a frame of its own.  The
+        grid steps 8-16 pixels, so where it falls on a car changes which
+        windows frame it, and a camera's grid falls anywhere: settings chosen
+        at one grid alone fit where it fell on the tuning frames' cars.
 
     Returns
     -------
     list of TuningResult
     """
     base = base_config or DetectorConfig()
+    if base.search.auto_horizon:
+        raise ConfigError('fastdet tune searches a numeric horizon: set [search] horizon to a '
+                          'number, not "auto"')
     grid = grid or DEFAULT_GRID
     lowest = min(grid["decision_threshold"])
-    scoring = Detector(model, dataclasses.replace(
-        base, search=dataclasses.replace(base.search, decision_threshold=lowest)))
+    lowest_config = dataclasses.replace(
+        base, search=dataclasses.replace(base.search, decision_threshold=lowest))
+    shifts = (0.0, *sorted({float(s) for s in jitter} - {0.0}))
+    scoring = {shift: Detector(model, _moved(lowest_config, shift)) for shift in shifts}
     frames, truth = {}, {}
     for number, (source, truth_of) in enumerate(paired_sources(sources, annotations)):
         for key, frame in annotated_frames(source, truth_of):
             # Keyed by source too: two videos may both have a frame0010.
             # The frame too: the refined boxes' sides snap to its edges
             # ([boxes] snap_sides).
-            frames[number, key] = (scoring.hits(frame), (frame.shape[1], frame.shape[0]), frame)
-            truth[number, key] = truth_of[key]
+            for shift, detector in scoring.items():
+                sample = (number, key) if not shift else (number, key, shift)
+                frames[sample] = (detector.hits(frame), (frame.shape[1], frame.shape[0]), frame)
+                truth[sample] = truth_of[key]
     results = []
     for threshold, heat_threshold, weighting, fraction in itertools.product(
             grid["decision_threshold"], grid["heat_threshold"], grid["weighting"],
@@ -148,6 +163,18 @@ def tune(model, sources, annotations, base_config=None, grid=None, log=None):
     if log:
         log(f"{len(results)} combinations on {len(frames)} annotated frames")
     return results
+
+
+def _moved(config, rows):
+    """``config`` searching ``rows`` reference-frame rows lower (higher when negative)."""
+    if not rows:
+        return config
+    search = config.search
+    if search.scales:
+        scales = tuple(dataclasses.replace(scale, y=(scale.y[0] + rows, scale.y[1] + rows))
+                       for scale in search.scales)
+        return dataclasses.replace(config, search=dataclasses.replace(search, scales=scales))
+    return config.with_horizon(search.horizon + rows / search.reference_size[1])
 
 
 def _refined(model, base, frames, truth, best):

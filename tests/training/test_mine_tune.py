@@ -13,7 +13,8 @@ from fastdet.detector.features import FeatureLayout, FeatureOptions
 from fastdet.detector.model import Model
 from fastdet.evaluation.annotations import load_annotations
 from fastdet.training.mine import background_hits, mine
-from fastdet.training.tune import as_toml, tune
+from fastdet.errors import ConfigError
+from fastdet.training.tune import _moved, as_toml, tune
 
 
 def test_background_hits_rules():
@@ -164,3 +165,38 @@ def test_mine_cli_takes_only_the_split_asked_for(tmp_path, capsys, generous_mode
     assert main(["mine", str(tmp_path / "dev.png"), "--annotations", str(annotations),
                  str(annotations), "--out", str(out), "--model", str(model_path)]) == EXIT_ERROR
     assert "one per source" in capsys.readouterr().err
+
+
+def test_jitter_scores_every_frame_at_each_grid_shift(tmp_path, generous_model):
+    """A jittered frame counts once as it is and once with the grid moved 16 rows
+    down: there the windows (a step of 32) straddle the block, the box misses it,
+    and precision and recall over both samples are a half."""
+    annotations = load_annotations(synthetic_frames(tmp_path))
+    truth = {"a.png": annotations["a.png"]}
+    grid = {"decision_threshold": (50.0,), "heat_threshold": (0.5,), "weighting": ("count",),
+            "peak_fraction": (0.0,)}
+    config = small_config()
+
+    def first(results):
+        return [r for r in results if not r.refine and r.width_scale == 1.5
+                and r.height_scale == 1.0 and r.center_dy == 0.0][0]
+
+    still = first(tune(generous_model, [tmp_path / "a.png"], truth, config, grid=grid))
+    moved = first(tune(generous_model, [tmp_path / "a.png"], truth, _moved(config, 16), grid=grid))
+    both = first(tune(generous_model, [tmp_path / "a.png"], truth, config, grid=grid,
+                      jitter=(16,)))
+    assert (still.precision, still.recall) == (1.0, 1.0)
+    assert (moved.precision, moved.recall) == (0.0, 0.0)
+    assert (both.precision, both.recall) == (0.5, 0.5)
+    assert both.mean_iou == still.mean_iou      # of the matched boxes: the unmoved one
+    search = _moved(config, -8).search
+    assert [s.y for s in search.scales] == [(-8, 120)]
+    frame_relative = _moved(DetectorConfig(), 7.2).search
+    assert frame_relative.horizon == pytest.approx(DetectorConfig().search.horizon + 0.01)
+
+
+def test_tune_refuses_an_auto_horizon(tmp_path, generous_model):
+    annotations = load_annotations(synthetic_frames(tmp_path))
+    config = DetectorConfig.from_dict({"search": {"horizon": "auto"}})
+    with pytest.raises(ConfigError, match="numeric horizon"):
+        tune(generous_model, [tmp_path / "a.png"], annotations, config)
