@@ -203,3 +203,38 @@ class PipelineThreads:
 
     def time_pipeline(self, threads):
         self._run()
+
+
+class VideoHorizon:
+    """``[search] horizon = "auto"`` before a video's first frame: reading the
+    frames it is estimated from (every 10th of the first 250) and the estimate.
+
+    ``estimate`` times the estimate alone, on the 38 decoded frames' first four
+    of every ten (what the test video gives it); ``read and estimate`` opens
+    the file again and decodes them too, as a run does.
+    """
+
+    params = (["estimate", "read and estimate"],)
+    param_names = ("part",)
+    number = 1
+    repeat = (3, 10, 30.0)
+    warmup_time = 0
+
+    def setup(self, part):
+        try:
+            from fastdet.detector.horizon import FRAME_STEP, estimate_horizon
+            from fastdet.video.horizon import horizon_frames
+            from fastdet.video.source import VideoSource
+        except ImportError:
+            raise NotImplementedError("this fastdet has no horizon estimate") from None
+        self.estimate, self.read = estimate_horizon, horizon_frames
+        self.source_class = VideoSource
+        self.frames = video_frames()[::FRAME_STEP]
+        self.estimate(self.frames)
+
+    def time_horizon(self, part):
+        if part == "estimate":
+            self.estimate(self.frames)
+        else:
+            with self.source_class(video_path()) as video:
+                self.estimate(self.read(video))
