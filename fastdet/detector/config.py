@@ -195,9 +195,9 @@ class SearchConfig:
         camera's frames, where its lane lines meet
         (:mod:`fastdet.detector.horizon`), before any is searched: ``fastdet
         run``, ``eval`` and ``batch`` from each video's first frames,
-        ``detect`` and ``eval`` on images from all the images given.  A :class:`~fastdet.Detector` searches
-        numeric horizons only: in code, resolve it first
-        (:func:`fastdet.detector.horizon.resolve_horizon`).
+        ``detect`` and ``eval`` on images from all the images given.  A
+        :class:`~fastdet.Detector` searches numeric horizons only: in code,
+        call its ``resolve_horizon(frames)`` first.
     band : tuple of float
         ``(low, high)``: a window's top edge lies between ``horizon + low *
         side`` and ``horizon + high * side``.  A vehicle's width is about

@@ -128,3 +128,27 @@ def test_eval_and_detect_print_the_horizon(data_dir, auto_config, capsys):
     assert len(captured.out.splitlines()) == len(images)
     assert main(["detect", *images[:1], "--threads", "1"]) == 0
     assert "horizon" not in capsys.readouterr().err
+
+
+class _LiveSource:
+    """What horizon_frames reads of a live source: its kind and first frame."""
+
+    kind = "network"
+    name = "udp://127.0.0.1:1234"
+
+    def __init__(self, first_frame):
+        self.first_frame = first_frame
+
+
+def test_a_live_source_gives_its_first_frame(data_dir):
+    from road_images import road
+
+    live = _LiveSource(road(1280, 720, 0.5))
+    assert len(horizon_frames(live)) == 1
+    detector = Detector(bundled_model_path(), AUTO, threads=1)
+    lines = []
+    estimate = resolve_video_horizon(detector, live, lines.append)
+    assert abs(estimate.fraction - 0.5) < 0.01
+    assert detector.config.search.horizon == estimate.fraction
+    assert lines and lines[0].startswith("udp://127.0.0.1:1234: horizon at 0.5")
+    assert horizon_frames(_LiveSource(None)) == []
