@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
-from ..detector.config import DetectorConfig, load_config
+from ..detector.config import DetectorConfig, load_config, with_search_horizon
 from ..detector.model import DEFAULT_MODEL_NAME, load_model, model_from_bytes
 from ..errors import InputError
 from ..video.codecs import DEFAULT_CRF, DEFAULT_PRESET
@@ -101,7 +101,7 @@ class BatchSettings:
 
 def make_settings(model=None, config=None, every=None, track=False, video=True,
                   detections=True, format=None, threads=1, codec="h264", crf=None,
-                  preset=None):
+                  preset=None, horizon=None):
     """Build and validate :class:`BatchSettings` from ``fastdet run``'s options.
 
     Parameters
@@ -110,6 +110,8 @@ def make_settings(model=None, config=None, every=None, track=False, video=True,
         Model file; the bundled model by default.
     config : str or Path, optional
         TOML configuration (its ``[track]`` section included).
+    horizon : float or "auto", optional
+        Overrides ``[search] horizon``.
     every : int, optional
         Overrides ``track.every``.
     track : bool
@@ -152,7 +154,7 @@ def make_settings(model=None, config=None, every=None, track=False, video=True,
         track_config = track_config.replace(tracking=True)
     return BatchSettings(model_bytes=model_bytes,
                          model_sha256=hashlib.sha256(model_bytes).hexdigest(),
-                         detector_config=load_config(config),
+                         detector_config=with_search_horizon(load_config(config), horizon),
                          track_config=track_config, write_video=bool(video),
                          detections_format=(format or "jsonl") if detections else None,
                          threads=threads, codec=codec,

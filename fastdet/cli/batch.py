@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 
 from ..video.detection_files import FORMATS
-from .common import add_encoder_options, add_schedule_options, compile_notice
+from .common import add_encoder_options, add_horizon_option, add_schedule_options, compile_notice
 
 #: Exit code when the batch ran but some videos failed.
 EXIT_SOME_FAILED = 1
@@ -30,6 +30,7 @@ def add_batch_parser(subparsers):
     batch.add_argument("--model", metavar="M", help="model file (.npz); default: bundled model")
     batch.add_argument("--config", metavar="C",
                        help="TOML config overriding built-in defaults ([track] for video settings)")
+    add_horizon_option(batch)
     add_schedule_options(batch)
     batch.add_argument("--format", choices=FORMATS, help="detections format (default: jsonl)")
     batch.add_argument("--no-video", action="store_true", help="do not write annotated videos")
@@ -66,7 +67,8 @@ def cmd_batch(args):
                     scheduler_file=args.scheduler_file, workers=args.workers,
                     threads=args.threads, segment=args.segment, force=args.force,
                     progress=not args.quiet and sys.stderr.isatty(), model=args.model,
-                    config=args.config, every=args.every, track=args.track,
+                    config=args.config, horizon=args.horizon, every=args.every,
+                    track=args.track,
                     video=not args.no_video, detections=not args.no_detections,
                     format=args.format, codec=args.codec, crf=args.crf, preset=args.preset,
                     compile_notice=lambda: compile_notice(enabled=not args.quiet))

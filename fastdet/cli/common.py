@@ -17,12 +17,39 @@ def add_model_options(parser):
                              "NUMBA_NUM_THREADS, all cores)")
 
 
+def add_horizon_option(parser):
+    """``--horizon``: the ``[search] horizon`` of the command, a number or ``auto``."""
+    parser.add_argument("--horizon", type=horizon_argument, metavar="H|auto",
+                        help="the horizon row as a fraction of the frame height, or auto: "
+                             "estimated from where the lane lines meet (overrides [search] "
+                             "horizon; default 0.58)")
+
+
+def horizon_argument(text):
+    """``--horizon``'s value: ``"auto"`` or a float (its range is checked with the config)."""
+    import argparse
+
+    if text == "auto":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a fraction of the frame height or auto, "
+                                         f"got {text!r}") from None
+
+
+def detector_config(args):
+    """The :class:`DetectorConfig` of ``--config``, with ``--horizon`` applied."""
+    from ..detector.config import load_config, with_search_horizon
+
+    return with_search_horizon(load_config(args.config), getattr(args, "horizon", None))
+
+
 def make_detector(args):
     """The :class:`~fastdet.detector.detector.Detector` that ``args``' model options ask for."""
-    from ..detector.config import load_config
     from ..detector.detector import Detector
 
-    return Detector(model=args.model, config=load_config(args.config),
+    return Detector(model=args.model, config=detector_config(args),
                     threads=getattr(args, "threads", None))
 
 
@@ -106,11 +133,10 @@ def make_pipeline(args, threads=None):
 
     ``threads``: the detector's threads (default: ``--threads``).
     """
-    from ..detector.config import load_config
     from ..detector.detector import Detector
     from ..video.pipeline import VideoPipeline
 
-    detector = Detector(model=args.model, config=load_config(args.config),
+    detector = Detector(model=args.model, config=detector_config(args),
                         threads=threads if threads is not None else getattr(args, "threads", None))
     return VideoPipeline(detector, track_config(args))
 

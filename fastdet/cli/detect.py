@@ -8,7 +8,8 @@ from pathlib import Path
 
 from ..files.atomic import output_folder, output_in_folder, refuse_overwriting_inputs
 from ..files.images import read_image, write_image
-from .common import add_model_options, compile_notice, make_detector, resolve_images_horizon
+from .common import (add_horizon_option, add_model_options, compile_notice, make_detector,
+                     resolve_images_horizon)
 
 
 def add_detect_parser(subparsers):
@@ -18,6 +19,7 @@ def add_detect_parser(subparsers):
     detect.add_argument("images", nargs="+", metavar="IMAGE")
     detect.add_argument("--out-dir", metavar="D", help="also write each image with boxes drawn")
     add_model_options(detect)
+    add_horizon_option(detect)
     detect.set_defaults(handler=cmd_detect)
     return detect
 

@@ -16,8 +16,8 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..files.images import read_image
-from .common import (add_model_options, add_schedule_options, compile_notice, make_detector,
-                     make_pipeline, resolve_images_horizon)
+from .common import (add_horizon_option, add_model_options, add_schedule_options,
+                     compile_notice, make_detector, make_pipeline, resolve_images_horizon)
 
 
 def add_eval_parser(subparsers):
@@ -40,6 +40,7 @@ def add_eval_parser(subparsers):
                                "inside one)")
     add_schedule_options(evaluate)   # videos only
     add_model_options(evaluate)
+    add_horizon_option(evaluate)
     evaluate.set_defaults(handler=cmd_eval)
     return evaluate
 

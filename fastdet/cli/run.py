@@ -23,8 +23,8 @@ from urllib.parse import unquote, urlparse
 from ..errors import InputError
 from ..files.atomic import STDOUT, output_in_folder, refuse_overwriting_inputs
 from ..video.detection_files import FORMATS
-from .common import (add_encoder_options, add_schedule_options, compile_notice, make_pipeline,
-                     message_stream, track_config)
+from .common import (add_encoder_options, add_horizon_option, add_schedule_options,
+                     compile_notice, make_pipeline, message_stream, track_config)
 
 
 def add_run_parser(subparsers):
@@ -53,6 +53,7 @@ def add_run_parser(subparsers):
     run.add_argument("--model", metavar="M", help="model file (.npz); default: bundled model")
     run.add_argument("--config", metavar="C",
                      help="TOML config overriding built-in defaults ([track] for video settings)")
+    add_horizon_option(run)
     run.add_argument("--threads", type=int, metavar="T",
                      help="cores the run may keep busy, shared by the decoder, the detector and "
                           "the encoder (default: NUMBA_NUM_THREADS, all cores; --verbose "

@@ -198,7 +198,7 @@ class BoxFinder:
         ref_w, ref_h = self.config.search.reference_size
         kx, ky = frame_size[0] / ref_w, frame_size[1] / ref_h
         min_size = cfg.min_size * math.sqrt(kx * ky)
-        horizon = cfg.horizon_y * ky
+        horizon = self.config.horizon_line() * ky
         keep = []
         # Plain Python over a frame's few boxes (see _clipped).
         for x1, y1, x2, y2 in np.asarray(boxes).tolist():

@@ -162,6 +162,8 @@ PREVIOUS_SCALES = (
 DEFAULT_HORIZON = 0.58
 #: ``[search] horizon = "auto"``: estimated from the frames.
 AUTO = "auto"
+#: ``[boxes] horizon_y`` at the default horizon (reference rows); it moves with the horizon.
+DEFAULT_HORIZON_Y = 380.0
 
 #: The default window sizes: 32, 48, 64, 96 and 128 pixels on a 720-row
 #: frame, as fractions of the frame height (0.0444 ... 0.1778).  At 720
@@ -345,8 +347,11 @@ class BoxConfig:
         Boxes narrower or shorter than this are dropped.
     min_aspect, max_aspect : float
         Allowed width / height ratio.
-    horizon_y : float
+    horizon_y : float or None
         Boxes lying entirely above this line (bottom edge <= it) are dropped.
+        ``None``: :data:`DEFAULT_HORIZON_Y` moved as far as the search
+        horizon lies from :data:`DEFAULT_HORIZON` (``"auto"`` included, once
+        resolved), see :meth:`DetectorConfig.horizon_line`.
     width_scale, height_scale : float
         Box shape correction, applied about the box centre before the
         filters: square windows make heat blobs narrower and taller than
@@ -370,7 +375,7 @@ class BoxConfig:
     min_size: float = 24.0
     min_aspect: float = 0.5
     max_aspect: float = 3.0
-    horizon_y: float = 380.0
+    horizon_y: float | None = None
     width_scale: float = 1.5
     height_scale: float = 1.0
     center_dy: float = 0.05
@@ -386,9 +391,11 @@ class BoxConfig:
                 for row in self.refine)):
             raise ConfigError(f"boxes.refine must be 4 rows of {N_FEATURES} numbers "
                               f"(or empty)")
-        for name in ("min_size", "min_aspect", "max_aspect", "horizon_y", "width_scale",
-                     "height_scale", "center_dy"):
+        for name in ("min_size", "min_aspect", "max_aspect", "width_scale", "height_scale",
+                     "center_dy"):
             _number(f"boxes.{name}", getattr(self, name))
+        if self.horizon_y is not None:
+            _number("boxes.horizon_y", self.horizon_y)
         if not 0 < self.min_aspect <= self.max_aspect:
             raise ConfigError("boxes.min_aspect must be > 0 and <= boxes.max_aspect")
         _number("boxes.snap_sides", self.snap_sides)
@@ -408,17 +415,18 @@ class DetectorConfig:
     boxes: BoxConfig = field(default_factory=BoxConfig)
 
     def with_horizon(self, fraction):
-        """This configuration searched about the horizon row ``fraction``.
+        """This configuration searched about the horizon row ``fraction`` (``[boxes]
+        horizon_y``, unless set, follows it: :meth:`horizon_line`)."""
+        return dataclasses.replace(self, search=dataclasses.replace(self.search,
+                                                                    horizon=float(fraction)))
 
-        ``[boxes] horizon_y`` (boxes entirely above it are dropped) moves
-        with the horizon, from this configuration's own horizon
-        (:data:`DEFAULT_HORIZON`, the one it was set for, when that is ``"auto"``).
-        """
-        search = dataclasses.replace(self.search, horizon=float(fraction))
-        base = self.search.horizon if self.search.horizon != AUTO else DEFAULT_HORIZON
-        shift = (search.horizon - base) * self.search.reference_size[1]
-        boxes = dataclasses.replace(self.boxes, horizon_y=self.boxes.horizon_y + shift)
-        return dataclasses.replace(self, search=search, boxes=boxes)
+    def horizon_line(self):
+        """``[boxes] horizon_y`` in reference rows: as set, or :data:`DEFAULT_HORIZON_Y`
+        moved with the search horizon (not moved while that is an unresolved ``"auto"``)."""
+        if self.boxes.horizon_y is not None:
+            return float(self.boxes.horizon_y)
+        horizon = DEFAULT_HORIZON if self.search.auto_horizon else self.search.horizon
+        return DEFAULT_HORIZON_Y + (horizon - DEFAULT_HORIZON) * self.search.reference_size[1]
 
     @classmethod
     def from_dict(cls, data, extra_sections=()):
@@ -476,6 +484,15 @@ def _build(section_cls, values, section):
         raise
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"invalid [{section}]: {exc}") from None
+
+
+def with_search_horizon(config, horizon):
+    """``config`` with ``[search] horizon`` set to ``horizon`` (a fraction or
+    ``"auto"``, validated), or as it is for ``None`` (``--horizon`` not given)."""
+    if horizon is None:
+        return config
+    return dataclasses.replace(config, search=dataclasses.replace(config.search,
+                                                                  horizon=horizon))
 
 
 def read_toml(path):

@@ -84,16 +84,26 @@ def test_resolving_moves_the_horizon_line_of_the_box_filter_with_it():
     assert abs(config.search.horizon - 0.5) < 0.01
     assert config.search.horizon == estimate.fraction
     shift = (config.search.horizon - DEFAULT_HORIZON) * 720
-    assert config.boxes.horizon_y == pytest.approx(AUTO.boxes.horizon_y + shift)
+    assert config.horizon_line() == pytest.approx(380 + shift)
+    assert AUTO.horizon_line() == DetectorConfig().horizon_line() == 380.0
     near, estimate = resolve_horizon(AUTO, [road(1280, 720, DEFAULT_HORIZON + 0.012)])
     assert abs(estimate.fraction - DEFAULT_HORIZON - 0.012) < 0.005
     assert near.search.horizon == DEFAULT_HORIZON     # within DEFAULT_SNAP: the default
     fallback, estimate = resolve_horizon(AUTO, [])
     assert estimate.fraction is None and fallback.search.horizon == DEFAULT_HORIZON
-    assert fallback.boxes.horizon_y == AUTO.boxes.horizon_y
-    # From a numeric horizon the line moves by the difference to it.
-    moved = DetectorConfig().with_horizon(0.5)
-    assert moved.boxes.horizon_y == pytest.approx(380 - 0.08 * 720)
+    assert fallback.horizon_line() == 380.0
+    # A numeric horizon moves it too; a line that is set stays where it is.
+    assert DetectorConfig().with_horizon(0.5).horizon_line() == pytest.approx(380 - 0.08 * 720)
+    fixed = DetectorConfig.from_dict({"boxes": {"horizon_y": 300}})
+    assert fixed.with_horizon(0.5).horizon_line() == 300.0
+
+
+def test_the_box_filter_drops_boxes_above_the_moved_line():
+    from fastdet.detector.boxes import BoxFinder
+
+    box = np.array([[600, 300, 660, 350]])           # bottom at 350, above 380
+    assert not BoxFinder(DetectorConfig()).box_filter(box, (1280, 720))[0]
+    assert BoxFinder(DetectorConfig().with_horizon(0.5)).box_filter(box, (1280, 720))[0]
 
 
 def test_config_takes_auto_and_numbers_only():

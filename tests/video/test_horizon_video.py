@@ -152,3 +152,25 @@ def test_a_live_source_gives_its_first_frame(data_dir):
     assert detector.config.search.horizon == estimate.fraction
     assert lines and lines[0].startswith("udp://127.0.0.1:1234: horizon at 0.5")
     assert horizon_frames(_LiveSource(None)) == []
+
+
+def test_the_horizon_option_overrides_the_config(pitched_video, tmp_path, auto_config, capsys):
+    from fastdet.cli import main
+
+    assert main(["run", str(pitched_video), "--horizon", "auto", "--threads", "1", "--quiet",
+                 "--detections", str(tmp_path / "option.jsonl")]) == 0
+    process_video(pitched_video, None, config=auto_config, detections=tmp_path / "config.jsonl",
+                  threads=1)
+    assert filecmp.cmp(tmp_path / "option.jsonl", tmp_path / "config.jsonl", shallow=False)
+    # A number overrides an "auto" config.
+    assert main(["run", str(pitched_video), "--config", str(auto_config), "--horizon", "0.58",
+                 "--threads", "1", "--detections", str(tmp_path / "fixed.jsonl")]) == 0
+    assert "horizon at" not in capsys.readouterr().err
+    process_video(pitched_video, None, detections=tmp_path / "default.jsonl", threads=1)
+    assert filecmp.cmp(tmp_path / "fixed.jsonl", tmp_path / "default.jsonl", shallow=False)
+    settings = make_settings(model=bundled_model_path(), horizon="auto")
+    assert settings.detector_config.search.auto_horizon
+    with pytest.raises(SystemExit) as stop:
+        main(["detect", str(pitched_video), "--horizon", "up"])
+    assert stop.value.code == 2
+    assert "--horizon: expected a fraction of the frame height or auto" in capsys.readouterr().err
