@@ -319,9 +319,12 @@ class ReferenceDetector:
         width = boxes[:, 2] - boxes[:, 0]
         height = boxes[:, 3] - boxes[:, 1]
         aspect = width / np.maximum(height, 1)
+        # Commits before the line followed the horizon set it in [boxes] alone.
+        line = (self.config.horizon_line() if hasattr(self.config, "horizon_line")
+                else limits.horizon_y)
         return ((width >= min_size) & (height >= min_size)
                 & (aspect >= limits.min_aspect) & (aspect <= limits.max_aspect)
-                & (boxes[:, 3] > limits.horizon_y * ky))
+                & (boxes[:, 3] > line * ky))
 
     def __call__(self, frame):
         """Detect vehicles in one frame.
