@@ -23,7 +23,7 @@ from ..kernels.warmup import warm
 from .boxes import BoxFinder
 from .config import DetectorConfig
 from .frames import as_bgr_frame
-from .horizon import resolve_horizon
+from .horizon import resolve_horizon, searched_at
 from .model import Model, load_model
 from .plan import plan_scales, search_band
 from .scoring import STAGES, Hits, ScaleScorer, kernel_families
@@ -237,6 +237,15 @@ class Detector:
         if config != self.config:
             self._search_with(config)
         return estimate
+
+    def take_horizon(self, estimate):
+        """Search at the horizon of an ``estimate`` already made (of the camera's
+        frames, :func:`~fastdet.detector.horizon.estimate_horizon`), if the
+        configured horizon is ``"auto"``; a numeric one stays."""
+        if self.auto_horizon:
+            config = searched_at(self._requested_config, estimate)
+            if config != self.config:
+                self._search_with(config)
 
     def __del__(self):
         pool = getattr(self, "_pool", None)

@@ -216,10 +216,17 @@ def resolve_horizon(config, frames):
     if not config.search.auto_horizon:
         return config, None
     estimate = estimate_horizon(frames)
+    return searched_at(config, estimate), estimate
+
+
+def searched_at(config, estimate):
+    """``config`` searched at the horizon ``estimate`` gives: the estimate, or the
+    built-in default where it found none or lies within :data:`DEFAULT_SNAP` of it."""
     fraction = estimate.fraction
     if fraction is None or abs(fraction - DEFAULT_HORIZON) < DEFAULT_SNAP:
         fraction = DEFAULT_HORIZON
-    return config.with_horizon(fraction), estimate
+    return config.with_horizon(fraction)
 
 
-__all__ = ["HorizonEstimate", "estimate_horizon", "frame_horizon", "resolve_horizon"]
+__all__ = ["HorizonEstimate", "estimate_horizon", "frame_horizon", "resolve_horizon",
+           "searched_at"]

@@ -174,3 +174,34 @@ def test_the_horizon_option_overrides_the_config(pitched_video, tmp_path, auto_c
         main(["detect", str(pitched_video), "--horizon", "up"])
     assert stop.value.code == 2
     assert "--horizon: expected a fraction of the frame height or auto" in capsys.readouterr().err
+
+
+def test_a_files_estimate_is_made_once_until_the_file_changes(pitched_video, tmp_path,
+                                                               monkeypatch):
+    """A batch worker runs a video's segments in turn: they read its frames once."""
+    import os
+    import shutil
+
+    from fastdet.video import horizon as video_horizon_module
+
+    copy = tmp_path / "copy.mp4"
+    shutil.copy(pitched_video, copy)
+    reads = []
+    real = video_horizon_module.horizon_frames
+    monkeypatch.setattr(video_horizon_module, "horizon_frames",
+                        lambda video: reads.append(video.name) or real(video))
+    detector = Detector(bundled_model_path(), AUTO, threads=1)
+    found = []
+    for start in (0, 20, 0):
+        with VideoSource(copy, start=start) as video:
+            found.append(resolve_video_horizon(detector, video))
+    assert len(reads) == 1 and found[0] == found[1] == found[2]
+    stat = os.stat(copy)
+    os.utime(copy, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
+    with VideoSource(copy) as video:
+        assert resolve_video_horizon(detector, video) == found[0]
+    assert len(reads) == 2
+    # A numeric horizon takes no estimate.
+    numeric = Detector(bundled_model_path(), threads=1)
+    numeric.take_horizon(found[0])
+    assert numeric.config.search.horizon == DEFAULT_HORIZON
