@@ -23,7 +23,7 @@ from ..kernels.warmup import warm
 from .boxes import BoxFinder
 from .config import DetectorConfig
 from .frames import as_bgr_frame
-from .horizon import resolve_horizon, searched_at
+from .horizon import estimate_horizon, searched_at
 from .model import Model, load_model
 from .plan import plan_scales, search_band
 from .scoring import STAGES, Hits, ScaleScorer, kernel_families
@@ -177,6 +177,7 @@ class Detector:
         self._plans = {}
         self._bands = {}
         self._all_windows = {}
+        self._search_bands = {}
         self.timings = dict.fromkeys(STAGES, 0.0)
         self.thread_busy = [0.0] * self.threads
         self.thread_cpu = [0.0] * self.threads
@@ -208,6 +209,7 @@ class Detector:
         self._plans = {}
         self._bands = {}
         self._all_windows = {}
+        self._search_bands = {}
 
     @property
     def auto_horizon(self):
@@ -233,9 +235,10 @@ class Detector:
             lines in enough frames the estimate's ``fraction`` is ``None`` and
             the built-in default horizon is searched.
         """
-        config, estimate = resolve_horizon(self._requested_config, frames)
-        if config != self.config:
-            self._search_with(config)
+        if not self.auto_horizon:
+            return None
+        estimate = estimate_horizon(frames)
+        self.take_horizon(estimate)
         return estimate
 
     def take_horizon(self, estimate):
@@ -276,9 +279,16 @@ class Detector:
                 frame_size, plan_scales(self.config, self.model.options, frame_size))
             # A folder of images of every size must not grow the caches without end.
             for size in list(self._plans)[:-PLANNED_SIZES]:
-                for cache in (self._plans, self._bands, self._all_windows):
+                for cache in (self._plans, self._bands, self._all_windows, self._search_bands):
                     cache.pop(size, None)
         return plans
+
+    def _search_band(self, frame_size):
+        """:func:`~fastdet.detector.plan.search_band` of the size's plans, kept with them."""
+        band = self._search_bands.get(frame_size)
+        if band is None:
+            band = self._search_bands[frame_size] = search_band(self.plans(frame_size))
+        return band
 
     def bands(self, frame_size):
         """The frame's scoring tasks for this detector's threads (:meth:`.ScaleScorer.bands`)."""
@@ -470,7 +480,7 @@ class Detector:
         readable = None
         if frame is not None:
             frame = as_bgr_frame(frame)   # a grey or BGRA frame too, as detection takes them
-            readable = search_band(self.plans(frame_size))
+            readable = self._search_band(frame_size)
         return self.box_finder.finish_boxes(boxes, peaks, frame_size, heat, origin, frame,
                                             readable)
 
