@@ -61,14 +61,15 @@ class GradientHistograms:
 
 
 @functools.lru_cache(maxsize=None)
-def _group_blocks_over_image(two_pass):
-    """A jitted walk of the cell kernel's interior group block (this CPU's lanes
-    and masked-add form) over every interior group of an image, in one or two
-    passes.  Not cached on disk: a variant the CPU does not use by default
-    only exists here."""
+def _group_blocks_over_image(two_pass, fused_add):
+    """A jitted walk of the cell kernel's interior group block (this CPU's lanes),
+    in one or two passes, its masked adds fused or not, over every interior
+    group of an image.  Not cached on disk: a variant the CPU does not use by
+    default only exists here."""
     from numba import njit
 
-    block = hog._group_block(3, 8, 8, ORIENTATIONS, False, False, two_pass=two_pass)
+    block = hog._group_block(3, 8, 8, ORIENTATIONS, False, False, two_pass=two_pass,
+                             fused_add=fused_add)
     group = hog._GROUP_CELLS * 8 * 3
 
     @njit(nogil=True)
@@ -81,24 +82,27 @@ def _group_blocks_over_image(two_pass):
 
 
 class CellBlockOrders:
-    """The cell kernel's group block in one pass and in two (gradients first).
+    """The cell kernel's group block in one pass and in two (gradients first),
+    with its masked adds as AND-then-add (or AVX-512's masked add) and as
+    fused multiply-adds of 0.0 / 1.0.
 
-    The kernel takes two passes without AVX-512 and one with it; this times
-    both on the machine at hand, so that the choice can be checked on every
-    CPU (the two give the same sums, bit for bit)."""
+    The kernel takes two passes without AVX-512 and one with it, and fuses the
+    adds where it has FMA but not AVX-512; this times every combination on the
+    machine at hand, so that the choices can be checked on every CPU (all give
+    the same sums, bit for bit)."""
 
-    params = (["1280x720"], [False, True])
-    param_names = ("frame_size", "two_pass")
+    params = (["1280x720"], [False, True], [False, True])
+    param_names = ("frame_size", "two_pass", "fused_add")
 
-    def setup(self, label, two_pass):
+    def setup(self, label, two_pass, fused_add):
         image = hls_image(label)
         self.args = (image.ravel(), image.shape[0], image.shape[1] * 3,
                      np.empty(hog._reduction_plan(hog._LANES, 3, 8, ORIENTATIONS).size,
                               np.float32))
-        self.walk = _group_blocks_over_image(two_pass)
+        self.walk = _group_blocks_over_image(two_pass, fused_add)
         self.walk(*self.args)
 
-    def time_group_blocks(self, label, two_pass):
+    def time_group_blocks(self, label, two_pass, fused_add):
         self.walk(*self.args)
 
 

@@ -403,3 +403,46 @@ def naive_snap_box_sides(frame, boxes, fraction, limits):
         if sides[0] < sides[1]:
             row[0], row[2] = sides
     return out
+
+
+def naive_fma_float32(a, b, c):
+    """``a * b + c`` of float32 arrays rounded once to float32 (to nearest, ties to even).
+
+    Exact rationals, one element at a time; infinities and NaN as IEEE 754
+    defines them.  A reference for the kernels' fused multiply-add, which no
+    NumPy function computes.
+    """
+    a, b, c = (np.asarray(v, dtype=np.float32) for v in (a, b, c))
+    out = np.empty(np.broadcast(a, b, c).shape, dtype=np.float32)
+    with np.errstate(invalid="ignore", over="ignore"):
+        for index, values in enumerate(zip(*(np.broadcast_to(v, out.shape).ravel()
+                                             for v in (a, b, c)))):
+            out.flat[index] = _naive_fma_one(*values)
+    return out
+
+
+def _naive_fma_one(x, y, z):
+    from fractions import Fraction
+
+    if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
+        # The product of finite floats is finite in float64, so float64 is exact here.
+        return np.float32(np.float64(x) * np.float64(y) + np.float64(z))
+    exact = Fraction(float(x)) * Fraction(float(y)) + Fraction(float(z))
+    if exact == 0:
+        # The sign of an exact zero sum follows IEEE 754's rules, which float64 applies.
+        return np.float32(np.float64(x) * np.float64(y) + np.float64(z))
+    # Past the largest float32 by half a step or more, rounding gives infinity.
+    if abs(exact) >= Fraction(float(np.finfo(np.float32).max)) + Fraction(2) ** 103:
+        return np.float32(np.inf if exact > 0 else -np.inf)
+    near = np.float32(float(exact))  # within one float32 step of the answer
+    candidates = [v for v in (np.nextafter(near, np.float32(-np.inf)), near,
+                              np.nextafter(near, np.float32(np.inf))) if np.isfinite(v)]
+
+    def distance(v):
+        return abs(Fraction(float(v)) - exact)
+
+    best = min(distance(v) for v in candidates)
+    ties = [v for v in candidates if distance(v) == best]
+    if len(ties) > 1:
+        ties = [v for v in ties if int(np.float32(v).view(np.uint32)) % 2 == 0]
+    return ties[0]

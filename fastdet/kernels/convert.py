@@ -17,8 +17,10 @@ the tests compare every one of the 2**24 colours with OpenCV):
 
 Whole runs of 16 pixels are one block of generic LLVM vector IR
 (:func:`_hls_block`): the 48 bytes are split into the three channels with
-constant shuffles, the arithmetic is done on ``<16 x float>`` (``llvm.fma``,
-``llvm.rint``) and the results are interleaved back with shuffles.  No
+constant shuffles, the arithmetic is done on ``<16 x float>`` (the fused
+multiply-add of :func:`fastdet.kernels._llvm.fused_multiply_add`: ``llvm.fma``,
+or its exact float64 emulation on CPUs without FMA, where ``llvm.fma`` would
+call libm per lane) and the results are interleaved back with shuffles.  No
 x86-specific intrinsics, so it is portable; LLVM picks the vector width.  The
 fused multiply-add is emulated in the scalar tail loop as
 ``float32(float64(hd) * float64(inv) + float64(hpart))`` (the product is exact
@@ -43,7 +45,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-from ._llvm import load_vector, store_vector
+from ._llvm import fused_multiply_add, load_vector, store_vector
 from .inner import CALLED_FROM_KERNELS_ONLY
 
 #: Pixels per vector block.
@@ -75,8 +77,6 @@ def _hls_block(typingctx, src, src_offset, dest, dest_offset):
         n = _BLOCK
         i8, i32, f32 = ir.IntType(8), ir.IntType(32), ir.FloatType()
         v_i32, v_f32 = ir.VectorType(i32, n), ir.VectorType(f32, n)
-        fma = builder.module.declare_intrinsic(
-            f"llvm.fma.v{n}f32", fnty=ir.FunctionType(v_f32, [v_f32, v_f32, v_f32]))
 
         def mask(indices):
             return ir.Constant(ir.VectorType(i32, len(indices)), indices)
@@ -133,18 +133,19 @@ def _hls_block(typingctx, src, src_offset, dest, dest_offset):
             is_r, builder.select(builder.fcmp_ordered("<", g, b), const(360.0), const(0.0)),
             builder.select(is_g, const(120.0), const(240.0)))
         inv = builder.fdiv(const(60.0), diff)
-        hue = builder.call(fma, [hd, inv, hpart])
+        hue = fused_multiply_add(builder, hd, inv, hpart)
         # not (diff > eps): unordered-or-less-equal.
         grey = builder.fcmp_unordered("<=", diff, const(_FLT_EPSILON))
         hue = builder.select(grey, const(0.0), hue)
         sat = builder.select(grey, const(0.0), sat)
 
-        # Round half to even: h * 0.5 is exact, so one fma; l * 255 and
+        # Round half to even: h * 0.5 is exact, so a multiply and an add round
+        # as one fma would; l * 255 and
         # s * 255 are rounded to float32 first, as in the rule.  All three
         # lie in 0..255 for every colour (the tests check all of them), so
         # OpenCV's saturation never acts and is left out.
         magic = const(_MAGIC)
-        h32 = builder.bitcast(builder.call(fma, [hue, const(0.5), magic]), v_i32)
+        h32 = builder.bitcast(builder.fadd(builder.fmul(hue, const(0.5)), magic), v_i32)
         l32 = builder.bitcast(builder.fadd(builder.fmul(light, const(255.0)), magic), v_i32)
         s32 = builder.bitcast(builder.fadd(builder.fmul(sat, const(255.0)), magic), v_i32)
         # Word k = h | l << 8 | s << 16 (garbage above), then drop byte 3 of each.

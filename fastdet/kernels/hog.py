@@ -44,7 +44,7 @@ from numba import njit, prange, types, uint64
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ._llvm import HAVE_AVX2, HAVE_AVX512F, load_vector, store_vector
+from ._llvm import HAVE_AVX2, HAVE_AVX512F, HAVE_FMA, load_vector, store_vector
 from .alloc import empty
 from .cache import kernel_cache_dir
 from .hog_float64 import float64_cell_histograms
@@ -680,6 +680,17 @@ def _output(out, shape, dtype=np.float32):
 # ms against 1.91 (8 lanes) and 6.1 against 7.25 ms (4 lanes,
 # NUMBA_CPU_NAME=generic), bit-identical.
 #
+# What is left on AVX2 (AMD EPYC, Zen 3, 2026-12-02, the interior blocks over
+# a whole 1280x720 HLS frame): 18.5-19.3 cycles per 8 lanes, of which the
+# gradient pass takes about 9 (the sums replaced by two adds: 9.0) and the
+# square root 1.4 (replaced by its argument: 17.5).  The sums loop is 26
+# vector operations per 8 lanes and row (4 multiplies, 4 compares, 8 ANDs, 10
+# adds) and ran at about 3 a cycle.  Making each threshold's 0.0 / 1.0 unit
+# once and fusing both of its masked adds into multiply-adds (_FUSED_ADD; 5
+# operations a threshold instead of 6, the adds moved to the multiply units)
+# took 0.93-0.97x the time, bit-identical; fusing only one or two of the four
+# thresholds took 1.00x and 1.13x.
+#
 # The bin comes from a rule, not the table: with ax = |gx|, ay = |gy| and
 # t_k = float32(tan(k * 180 / nbins deg)), k' = number of k (1 .. nbins // 2)
 # with ay >= float32(ax * t_k); the bin is nbins - 1 - k' if gx * gy < 0, else
@@ -698,6 +709,9 @@ _LANES = 16 if HAVE_AVX512F else 8 if HAVE_AVX2 else 4
 #: Masked adds as an AND of the value, then an add (see the block's
 #: masked_add): where there is no AVX-512 masked add.
 _MASK_THEN_ADD = not HAVE_AVX512F
+#: Masked adds as a fused multiply-add of the value and 0.0 or 1.0 (see the
+#: block's masked_add): without AVX-512's masked add, where there is FMA.
+_FUSED_ADD = _MASK_THEN_ADD and HAVE_FMA
 #: Gradients of the whole group first, then the sums (see the block's
 #: two_pass): where there is no AVX-512.  With AVX-512 the two orders took the
 #: same time on an AMD Zen 4 (asv CellBlockOrders, per-round ratio 1.00-1.01)
@@ -838,7 +852,7 @@ def _reduction_plan(lanes, channels, ppc_x, nbins):
 
 
 def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,
-                 mask_then_add=_MASK_THEN_ADD, two_pass=_TWO_PASS):
+                 mask_then_add=_MASK_THEN_ADD, two_pass=_TWO_PASS, fused_add=_FUSED_ADD):
     """An intrinsic ``block(flat, height, row_bytes, y0, x0, scratch)``.
 
     Adds up, for the _GROUP_CELLS cells whose elements start at flat-row offset
@@ -850,7 +864,8 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,
     ``last``: it ends with the row's last pixel.  Otherwise the block reads
     ``channels`` bytes either side of the group.  ``two_pass``: the group's
     gradients go through a stack buffer before they are summed (same sums,
-    bit for bit; see the comment at ``if two_pass``).
+    bit for bit; see the comment at ``if two_pass``).  ``fused_add``: the
+    masked adds as fused multiply-adds (same sums; see ``masked_add``).
     """
     group = _GROUP_CELLS * ppc_x * channels
     assert group % lanes == 0 and channels < lanes
@@ -881,18 +896,30 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,
         def widen(v):
             return builder.zext(v, ints_t)
 
-        def masked_add(past, total, value):
-            # Both forms give the same sums: totals are never -0.0, so adding
-            # +0.0 leaves them unchanged.  AVX-512 has a masked add (one
-            # instruction); elsewhere LLVM would make the select of sums a
-            # blend (two or three uops on Intel), while the select of the
-            # value against zero is one AND.
+        def masked_add(past, total, value, unit=None):
+            # All forms give the same sums: totals are never -0.0, so adding
+            # +0.0 leaves them unchanged, and value * 1.0 + total rounds as
+            # value + total.  AVX-512 has a masked add (one instruction);
+            # elsewhere LLVM would make the select of sums a blend (two or
+            # three uops on Intel), while the select of the value against zero
+            # is one AND.  With FMA the 0.0 / 1.0 ``unit`` of a threshold
+            # (one AND) serves both of its sums, and the adds move to the
+            # multiply units: the block took 0.93-0.97x the time of
+            # AND-then-add on an AMD EPYC, Zen 3 (asv CellBlockOrders).
+            if unit is not None:
+                return builder.call(fmuladd, [unit, value, total])
             if mask_then_add:
                 return builder.fadd(total, builder.select(past, value, zero_f))
             return builder.select(past, builder.fadd(total, value), total)
 
-        fma = cgutils.get_or_insert_function(
-            builder.module, ir.FunctionType(floats_t, [floats_t] * 3), f"llvm.fma.v{lanes}f32")
+        # fmuladd, not fma: fused where the CPU has FMA, a multiply and an add
+        # otherwise, where llvm.fma would call libm's fmaf per lane: a frame's
+        # cells took 74-78 ms against 6.6 with glibc's software fmaf, and the
+        # block 1.6x as long even where glibc runs fmaf on the FMA unit
+        # (baseline x86-64 target, AMD EPYC Zen 3).  Both are exact below.
+        fmuladd = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(floats_t, [floats_t] * 3),
+            f"llvm.fmuladd.v{lanes}f32")
         fabs = cgutils.get_or_insert_function(
             builder.module, ir.FunctionType(floats_t, [floats_t]), f"llvm.fabs.v{lanes}f32")
         zero64, one = ir.Constant(i64, 0), ir.Constant(i64, 1)
@@ -944,7 +971,7 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,
             fx = builder.sitofp(gx, floats_t)
             fy = builder.sitofp(gy, floats_t)
             # Exact: gx * gx + gy * gy < 2**24.
-            magnitude = builder.call(sqrt, [builder.call(fma, [fx, fx, builder.fmul(fy, fy)])])
+            magnitude = builder.call(sqrt, [builder.call(fmuladd, [fx, fx, builder.fmul(fy, fy)])])
             # gx * gy is exact; a zero product (gx = 0 or gy = 0) counts as
             # not obtuse, which changes nothing for gx = 0: k is the middle bin.
             obtuse = builder.fcmp_ordered("<", builder.fmul(fx, fy), zero_f)
@@ -961,8 +988,10 @@ def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,
             obtuse_sums = [builder.fadd(phis[middle + 1], obtuse_mag)]
             for count, t in enumerate(thresholds, 1):
                 past = builder.fcmp_ordered(">=", ay, builder.fmul(ax, splat(t, floats_t)))
-                acute.append(masked_add(past, phis[count], acute_mag))
-                obtuse_sums.append(masked_add(past, phis[middle + 1 + count], obtuse_mag))
+                unit = (builder.select(past, splat(1.0, floats_t), zero_f) if fused_add
+                        else None)
+                acute.append(masked_add(past, phis[count], acute_mag, unit))
+                obtuse_sums.append(masked_add(past, phis[middle + 1 + count], obtuse_mag, unit))
             return acute + obtuse_sums
 
         def row_loop(name, body, phi_count=0, launder=False):

@@ -40,7 +40,7 @@ from llvmlite import ir
 from numba import njit, prange, types, uint64
 from numba.extending import intrinsic
 
-from ._llvm import counted_loop, load_vector, splat, store_vector
+from ._llvm import counted_loop, fused_multiply_add, load_vector, splat, store_vector
 from .alloc import empty, full, zeros
 from .blocks import EPS, NORM_CODES
 from .hog import to_phase_layout
@@ -294,8 +294,6 @@ def _window_dots(rows):
         w_base, w_step, stride, offset, channels, per_channel, a0, a_step = [
             context.cast(builder, args[k], signature.args[k], types.int64)
             for k in (1, 2, 4, 5, 7, 8, 10, 11)]
-        fma = builder.module.declare_intrinsic(
-            f"llvm.fma.v{_LANES}f32", fnty=ir.FunctionType(vector, [vector] * 3))
         zero = ir.Constant(vector, [0.0] * _LANES)
         w_bases = [builder.add(w_base, builder.mul(w_step, ir.Constant(i64, i)))
                    for i in range(rows)]
@@ -307,7 +305,7 @@ def _window_dots(rows):
             for w_row, total in zip(w_bases, sums):
                 weight = builder.load(builder.gep(weights, [builder.add(w_row, feature)]))
                 weight = splat(builder, weight, vector)
-                out.append(builder.call(fma, [weight, x, total]))
+                out.append(fused_multiply_add(builder, weight, x, total))
             return out
 
         def channel(c, totals):
@@ -330,7 +328,8 @@ def _window_dots(rows):
                                  lambda k, partial: add_feature(last, partial))
             scale = load_vector(builder, second,
                                 builder.add(builder.mul(c, stride), offset), vector)
-            return [builder.call(fma, [part, scale, total]) for part, total in zip(sums, totals)]
+            return [fused_multiply_add(builder, part, scale, total)
+                    for part, total in zip(sums, totals)]
 
         totals = counted_loop(builder, channels, [zero] * rows, channel)
         for i, total in enumerate(totals):
@@ -387,8 +386,6 @@ def _normalise_blocks(norm_code):
         bias, hys_bias = splat(builder, args[12], vector), splat(builder, args[13], vector)
         sqrt = builder.module.declare_intrinsic(
             f"llvm.sqrt.v{_LANES}f32", fnty=ir.FunctionType(vector, [vector]))
-        fma = builder.module.declare_intrinsic(
-            f"llvm.fma.v{_LANES}f32", fnty=ir.FunctionType(vector, [vector] * 3))
         zero = ir.Constant(vector, [0.0] * _LANES)
         one = ir.Constant(vector, [1.0] * _LANES)
         clip = ir.Constant(vector, [float(np.float32(0.2))] * _LANES)
@@ -429,7 +426,7 @@ def _normalise_blocks(norm_code):
                                  builder.add(n_base, builder.add(builder.mul(f, stride), p0)))
                     if norm_code != 3:
                         return sums
-                    return [builder.call(fma, [value, value, sums[0]])]
+                    return [fused_multiply_add(builder, value, value, sums[0])]
 
                 return counted_loop(builder, nbins, sums, feature)
 

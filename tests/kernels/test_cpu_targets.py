@@ -10,7 +10,11 @@ subprocess with its own empty ``NUMBA_CACHE_DIR``:
   features, i.e. AVX2 and no AVX-512.  (``NUMBA_CPU_NAME=haswell`` alone is
   *not* an AVX2 target: Numba then adds the host's features, AVX-512
   included.)
-* ``generic``: ``NUMBA_CPU_NAME=generic``: baseline x86-64 (SSE2).
+* ``sandybridge``: AVX and SSSE3 but no AVX2 and no FMA (Intel's cores of
+  2011-2013): the 4-lane cell blocks with AVX, and the fused multiply-adds
+  emulated in float64 (:func:`fastdet.kernels._llvm.fused_multiply_add`);
+* ``generic``: ``NUMBA_CPU_NAME=generic``: baseline x86-64 (SSE2), no FMA
+  either.
 
 Default profile (:func:`test_target_matches_native_and_naive`): the script at
 the bottom of this file runs every kernel family on small inputs chosen to
@@ -21,8 +25,8 @@ or OpenCV, and saves the outputs; the test then requires every one of them
 bit-identical to the native target's: the cells (16, 8 and 4 lanes), block
 norms, HOG and spatial scores, colour tile sums (AVX-512, AVX2 and per-pixel
 paths), resize, HLS, heat, labels and the whole detector's margins on a real
-frame.  11-20 s per target on the development machine, nearly all of it
-compiling (about 60 s for the module).
+frame.  11-30 s per target, nearly all of it compiling (110 s for the module
+on an AMD EPYC, Zen 3).
 
 Full profile (``-m slow``, :func:`test_kernel_tests_pass_on_target`): the
 whole kernel test suite under each target, several minutes per target.
@@ -47,6 +51,7 @@ TESTS = HERE.parents[1]
 TARGETS = {
     "native": {},
     "haswell": {"NUMBA_CPU_NAME": "haswell", "NUMBA_CPU_FEATURES": ""},
+    "sandybridge": {"NUMBA_CPU_NAME": "sandybridge", "NUMBA_CPU_FEATURES": ""},
     "generic": {"NUMBA_CPU_NAME": "generic", "NUMBA_CPU_FEATURES": ""},
 }
 
@@ -109,13 +114,18 @@ def test_targets_take_their_own_paths(fingerprints):
     assert paths["haswell"]["avx512f"] is False
     assert paths["haswell"]["hog_lanes"] == 8
     assert paths["haswell"]["colour_path"] == 2       # PATH_AVX2
+    assert paths["haswell"]["fma"] is True
+    assert paths.get("sandybridge", {}).get("ssse3") is True
+    assert paths["sandybridge"]["avx2"] is False and paths["sandybridge"]["fma"] is False
+    assert paths["sandybridge"]["hog_lanes"] == 4
     assert paths.get("generic", {}).get("ssse3") is False
+    assert paths["generic"]["fma"] is False
     assert paths["generic"]["hog_lanes"] == 4
     assert paths["generic"]["colour_path"] == 1       # PATH_SCALAR
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("target", ["haswell", "generic"])
+@pytest.mark.parametrize("target", ["haswell", "sandybridge", "generic"])
 def test_kernel_tests_pass_on_target(tmp_path, target):
     """The whole kernel test suite, compiled for ``target`` (several minutes)."""
     modules = sorted(str(p) for p in HERE.parent.glob("test_*.py") if p != HERE)
@@ -260,7 +270,7 @@ def _outputs():
     arrays["detector_margins"] = np.concatenate([
         detector.score_scale(prepared, plan).ravel()
         for plan in detector.plans((frame.shape[1], frame.shape[0]))])
-    paths = {"ssse3": _llvm.HAVE_SSSE3, "avx2": _llvm.HAVE_AVX2,
+    paths = {"ssse3": _llvm.HAVE_SSSE3, "avx2": _llvm.HAVE_AVX2, "fma": _llvm.HAVE_FMA,
              "avx512f": _llvm.HAVE_AVX512F, "avx512bw": _llvm.HAVE_AVX512BW,
              "hog_lanes": hog._LANES, "colour_path": colour_kernels.TILE_PATH}
     return paths, arrays
