@@ -88,6 +88,7 @@ def cmd_bench(args):
     from ..bench.scaling_plot import plot_scaling
     from ..bench.latency import format_stages, format_table, format_threads, run_benchmark
     from ..bench.timing import read_frames
+    from ..bench.two_cores import format_two_cores, two_core_ceiling
     from ..detector.config import load_config
     from ..detector.model import load_model
     from ..errors import InputError
@@ -141,6 +142,8 @@ def cmd_bench(args):
     print("\n## fastdet threads (busy: colour conversion and scoring; ratio of medians)\n")
     print(format_threads(run.results))
     if max(threads) > 1:
+        log("timing two copies of one kernel at once against one alone ...")
+        print("\n" + format_two_cores(two_core_ceiling(frames[0])))
         pipeline_rounds = args.rounds or 3
         points = frame_level_study(frames, threads, pipeline_rounds, model, config, log=log)
         passes = len(looped(frames))

@@ -1,0 +1,35 @@
+"""The two-core ceiling: two copies of a job at once against one alone."""
+
+import time
+
+import numpy as np
+
+from fastdet.bench.two_cores import format_two_cores, throughput_ratio, two_core_ceiling
+
+
+def test_a_job_that_waits_without_the_gil_doubles():
+    # Sleeping takes no core: two copies at once finish as fast as one.
+    figures = throughput_ratio(lambda: time.sleep(0.02), rounds=3)
+    assert 1.7 < figures["ratio"] <= 2.1
+    assert figures["together_ms"] < 1.5 * figures["alone_ms"]
+
+
+def test_a_job_that_holds_the_gil_does_not_speed_up():
+    def spin():
+        total = 0
+        for i in range(200_000):
+            total += i
+        return total
+
+    # Two Python threads take turns: twice the work takes about twice as long.
+    assert throughput_ratio(spin, rounds=3)["ratio"] < 1.35
+
+
+def test_ceiling_of_the_machine_kernels_is_between_one_and_two_cores():
+    frame = np.random.default_rng(0).integers(0, 256, (72, 128, 3), dtype=np.uint8)
+    ceiling = two_core_ceiling(frame, rounds=2)
+    for kernel in ("cells", "chain"):
+        assert 0.5 < ceiling[kernel]["ratio"] < 2.5
+        assert ceiling[kernel]["alone_ms"] > 0
+    line = format_two_cores(ceiling)
+    assert f"{ceiling['cells']['ratio']:.2f}x the work of one copy alone" in line
