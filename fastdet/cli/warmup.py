@@ -12,8 +12,8 @@ def add_warmup_parser(subparsers):
     warmup = subparsers.add_parser(
         "warmup", help="compile (or load) every kernel once and say what it took",
         description="Compile the Numba kernels into the kernel cache (or load them if they are "
-                    "there), so that later commands start at once.  Prints one line per kernel "
-                    "family.")
+                    "there) and byte-compile fastdet's Python modules where they are not yet, so "
+                    "that later commands start at once.  Prints one line per kernel family.")
     warmup.add_argument("--families", nargs="+", choices=sorted(FAMILIES), metavar="F",
                         help=f"only these families (default: all: {', '.join(FAMILIES)})")
     warmup.add_argument("--processes", type=int, default=None, metavar="N",
@@ -26,12 +26,20 @@ def add_warmup_parser(subparsers):
 def cmd_warmup(args):
     """Warm the families and print what each cost; returns the exit code."""
     from ..errors import InputError
+    from ..files.bytecode import compile_package
     from ..kernels.cache import kernel_cache_dir
     from ..kernels.warmup import FAMILIES, compiled_here, warm
 
     if args.processes is not None and args.processes < 1:
         raise InputError(f"--processes must be at least 1, got {args.processes}")
     names = args.families or list(FAMILIES)
+    bytecode = compile_package()
+    if bytecode["compiled"]:
+        done = "" if bytecode["ok"] else " (some could not be written: a read-only installation)"
+        print(f"python modules: {bytecode['compiled']} byte-compiled in "
+              f"{bytecode['seconds']:.2f} s{done}")
+    else:
+        print("python modules: already byte-compiled")
     print(f"kernel cache: {kernel_cache_dir()}")
     start = time.perf_counter()
     seconds = warm(names, processes=args.processes)
