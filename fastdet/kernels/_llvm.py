@@ -181,7 +181,9 @@ def _target_features(names):
     instruction in the machine code.
     """
     if platform.machine().lower() not in ("x86_64", "amd64"):
-        return dict.fromkeys(names, False)
+        # No x86 vector path applies; fused multiply-adds may still be
+        # instructions (every ARMv8 core has them).
+        return {name: name == "fma" and fma_in_hardware() for name in names}
     from llvmlite import binding
     from numba.core import config
     try:
@@ -204,6 +206,28 @@ def _target_features(names):
         source, instruction = _PROBES[name]
         found[name] = instruction in machine.emit_assembly(binding.parse_assembly(source))
     return found
+
+
+def fma_in_hardware(cpu=None, features=None):
+    """Whether ``llvm.fma`` compiles to an instruction, not a call of libm's ``fmaf``.
+
+    For Numba's target by default (``NUMBA_CPU_NAME`` / ``NUMBA_CPU_FEATURES``
+    as :func:`_target_features` reads them), or for ``cpu`` and ``features``:
+    the probe is compiled and its machine code searched for the call, which
+    works on any architecture LLVM targets.
+    """
+    from llvmlite import binding
+    from numba.core import config
+    binding.initialize_native_target()
+    binding.initialize_native_asmprinter()
+    if cpu is None:
+        cpu = config.CPU_NAME or binding.get_host_cpu_name()
+    if features is None:
+        features = (config.CPU_FEATURES if config.CPU_FEATURES is not None
+                    else binding.get_host_cpu_features().flatten())
+    machine = binding.Target.from_default_triple().create_target_machine(
+        cpu=cpu, features=features, opt=0)
+    return "fmaf" not in machine.emit_assembly(binding.parse_assembly(_PROBES["fma"][0]))
 
 
 _FOUND = _target_features(("ssse3", "avx2", "fma", "avx512f", "avx512bw"))

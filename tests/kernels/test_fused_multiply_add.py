@@ -96,3 +96,26 @@ def test_the_two_paths_agree_bit_for_bit_on_random_floats():
     same = (fused.view(np.uint32) == emulated.view(np.uint32)) | (np.isnan(fused)
                                                                   & np.isnan(emulated))
     assert same.all()
+
+
+def test_fma_instructions_are_found_per_target():
+    from fastdet.kernels._llvm import fma_in_hardware
+
+    assert fma_in_hardware("haswell", "") is True
+    assert fma_in_hardware("sandybridge", "") is False   # AVX, but no FMA
+    assert fma_in_hardware("generic", "") is False
+
+
+def test_the_flag_agrees_with_the_probe_on_this_target():
+    from fastdet.kernels import _llvm
+
+    # The x86 flag comes from LLVM's feature list; the probe asks the code generator.
+    assert _llvm.HAVE_FMA == _llvm.fma_in_hardware()
+
+
+def test_other_architectures_keep_only_the_fma_probe(monkeypatch):
+    from fastdet.kernels import _llvm
+
+    monkeypatch.setattr(_llvm.platform, "machine", lambda: "aarch64")
+    found = _llvm._target_features(("ssse3", "avx2", "fma"))
+    assert found == {"ssse3": False, "avx2": False, "fma": _llvm.fma_in_hardware()}
