@@ -223,8 +223,12 @@ def fma_in_hardware(cpu=None, features=None):
     if cpu is None:
         cpu = config.CPU_NAME or binding.get_host_cpu_name()
     if features is None:
-        features = (config.CPU_FEATURES if config.CPU_FEATURES is not None
-                    else binding.get_host_cpu_features().flatten())
+        features = config.CPU_FEATURES
+    if features is None:
+        try:
+            features = binding.get_host_cpu_features().flatten()
+        except Exception:  # noqa: BLE001 - no feature list: the CPU name's own features
+            features = ""
     machine = binding.Target.from_default_triple().create_target_machine(
         cpu=cpu, features=features, opt=0)
     return "fmaf" not in machine.emit_assembly(binding.parse_assembly(_PROBES["fma"][0]))
