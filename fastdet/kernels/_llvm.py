@@ -195,12 +195,7 @@ def _target_features(names):
             return dict.fromkeys(names, False)
         listed = host.split(",")
         return {name: f"+{name}" in listed for name in names}
-    features = config.CPU_FEATURES if config.CPU_FEATURES is not None else host or ""
-    cpu = config.CPU_NAME or binding.get_host_cpu_name()
-    binding.initialize_native_target()
-    binding.initialize_native_asmprinter()
-    machine = binding.Target.from_default_triple().create_target_machine(
-        cpu=cpu, features=features, opt=0)
+    machine = _target_machine()
     found = {}
     for name in names:
         source, instruction = _PROBES[name]
@@ -208,14 +203,10 @@ def _target_features(names):
     return found
 
 
-def fma_in_hardware(cpu=None, features=None):
-    """Whether ``llvm.fma`` compiles to an instruction, not a call of libm's ``fmaf``.
-
-    For Numba's target by default (``NUMBA_CPU_NAME`` / ``NUMBA_CPU_FEATURES``
-    as :func:`_target_features` reads them), or for ``cpu`` and ``features``:
-    the probe is compiled and its machine code searched for the call, which
-    works on any architecture LLVM targets.
-    """
+def _target_machine(cpu=None, features=None):
+    """An LLVM target machine for ``cpu`` and ``features``, by default Numba's:
+    ``NUMBA_CPU_NAME`` or the host CPU, ``NUMBA_CPU_FEATURES`` or the host's
+    features (none where the host lists none)."""
     from llvmlite import binding
     from numba.core import config
     binding.initialize_native_target()
@@ -229,8 +220,19 @@ def fma_in_hardware(cpu=None, features=None):
             features = binding.get_host_cpu_features().flatten()
         except Exception:  # noqa: BLE001 - no feature list: the CPU name's own features
             features = ""
-    machine = binding.Target.from_default_triple().create_target_machine(
+    return binding.Target.from_default_triple().create_target_machine(
         cpu=cpu, features=features, opt=0)
+
+
+def fma_in_hardware(cpu=None, features=None):
+    """Whether ``llvm.fma`` compiles to an instruction, not a call of libm's ``fmaf``.
+
+    For Numba's target by default, or for ``cpu`` and ``features``
+    (:func:`_target_machine`): the probe is compiled and its machine code
+    searched for the call, which works on any architecture LLVM targets.
+    """
+    from llvmlite import binding
+    machine = _target_machine(cpu, features)
     return "fmaf" not in machine.emit_assembly(binding.parse_assembly(_PROBES["fma"][0]))
 
 
