@@ -13,32 +13,53 @@ benchmark does too before its warm runs, as pip would have.
 
 from __future__ import annotations
 
-import compileall
 import importlib.util
+import py_compile
 import struct
 import time
 from pathlib import Path
 
+#: Flag bits of a ``.pyc`` header (PEP 552): hash-based, and then whether
+#: Python checks the hash against the source.
+_HASH_BASED, _CHECK_SOURCE = 0b01, 0b10
 
-def _header(source):
-    """The 16 bytes Python expects at the start of ``source``'s ``.pyc``: the
-    magic number, flags 0 (timestamp-checked), and the source's mtime and size."""
-    info = source.stat()
-    return (importlib.util.MAGIC_NUMBER + struct.pack("<III", 0, int(info.st_mtime) & 0xFFFF_FFFF,
-                                                      info.st_size & 0xFFFF_FFFF))
+
+def _usable(source, header):
+    """Whether Python would run a ``.pyc`` starting with ``header`` for ``source``.
+
+    Its rule (PEP 552): this interpreter's magic number, then either flags 0
+    and the source's modification time and size, or a hash-based file, whose
+    source hash Python compares only when the file asks for it (``pip
+    install`` and ``compileall`` write those when ``SOURCE_DATE_EPOCH`` is
+    set, for reproducible builds; judged by timestamps they would look stale
+    at every warm-up).
+    """
+    if len(header) < 16 or header[:4] != importlib.util.MAGIC_NUMBER:
+        return False
+    flags = int.from_bytes(header[4:8], "little")
+    if flags == 0:
+        info = source.stat()
+        return header[8:16] == struct.pack("<II", int(info.st_mtime) & 0xFFFF_FFFF,
+                                           info.st_size & 0xFFFF_FFFF)
+    if flags & ~(_HASH_BASED | _CHECK_SOURCE) or not flags & _HASH_BASED:
+        return False
+    if not flags & _CHECK_SOURCE:
+        return True
+    return header[8:16] == importlib.util.source_hash(source.read_bytes())
 
 
 def stale_modules(package_dir):
     """The ``.py`` files under ``package_dir`` whose ``.pyc`` Python would not use.
 
-    Python's own rule: the cached file must carry this interpreter's magic
-    number and the source's modification time and size.
+    Python's own rule (see :func:`_usable`): timestamp-checked files must
+    carry the source's modification time and size, checked hash-based ones
+    its hash.
     """
     stale = []
     for source in sorted(Path(package_dir).rglob("*.py")):
         try:
             with open(importlib.util.cache_from_source(str(source)), "rb") as compiled:
-                if compiled.read(16) == _header(source):
+                if _usable(source, compiled.read(16)):
                     continue
         except OSError:
             pass
@@ -48,6 +69,11 @@ def stale_modules(package_dir):
 
 def compile_package(package_dir=None):
     """Write the missing or stale ``.pyc`` files of a package (fastdet's by default).
+
+    Only the stale modules are compiled, in the invalidation mode
+    ``py_compile`` picks (hash-based under ``SOURCE_DATE_EPOCH``, as pip
+    would write them); ``compileall`` instead rewrote every hash-based file
+    it met, whatever its state.
 
     Parameters
     ----------
@@ -66,7 +92,9 @@ def compile_package(package_dir=None):
     start = time.perf_counter()
     stale = stale_modules(package_dir)
     ok = True
-    if stale:
-        # quiet=2: a read-only folder is reported through the return value, not printed.
-        ok = bool(compileall.compile_dir(str(package_dir), quiet=2))
+    for source in stale:
+        try:
+            py_compile.compile(str(source), doraise=True)
+        except (py_compile.PyCompileError, OSError):
+            ok = False
     return {"compiled": len(stale), "seconds": time.perf_counter() - start, "ok": ok}
