@@ -23,17 +23,20 @@ from pathlib import Path
 from ._version import __version__
 
 #: Seconds each family took to compile (empty cache, a process of its own,
-#: Numba's own helpers included), measured on an AMD EPYC (Zen 4, AVX2 build)
-#: on 2026-11-28, median of three runs, with the collector held back during
-#: compiles (:mod:`fastdet.kernels.compile_gc`), no reshape or integer-power
-#: implementations compiled, and only the variants a detection runs (see
-#: ``_colour_maps``, ``_score_window_rows`` and ``_cell_rows_u8_fast``; the
-#: per-pixel tails of the conversion and the cells are the family "tails").  The
-#: families that did not change since the Zen 3 figures took 1.07-1.28 times
-#: those here.  :func:`split_families` balances two processes with these weights.
-COMPILE_WEIGHTS = {"label": 4.93, "track": 4.48, "split": 4.02, "hog_api": 3.34, "tails": 2.74,
-                   "score": 2.64, "colour": 1.82, "heat": 1.71, "refine": 1.66, "resize": 1.58,
-                   "hog": 1.12, "smooth": 0.5, "convert": 0.32}
+#: Numba's own helpers included), measured on an AMD EPYC (Zen 3, AVX2, two
+#: vCPUs) on 2026-12-02, medians of three rounds of ``fastdet warmup --families
+#: F --processes 1``, with the collector held back during compiles
+#: (:mod:`fastdet.kernels.compile_gc`) and only the variants a detection runs
+#: (see ``_colour_maps``, ``_score_window_rows`` and ``_cell_rows_u8_fast``; the
+#: per-pixel tails of the conversion and the cells are the family "tails").
+#: The previous weights (Zen 4, 2026-11-28) predate the refinement's side
+#: snapping: refine 1.66 against 3.13 here, while most families took
+#: 1.0-1.3 times as long here; with them a cold detection's own process
+#: compiled 11.6 s against the helper's 8.8 s of these.
+#: :func:`split_families` balances two processes with these weights.
+COMPILE_WEIGHTS = {"label": 6.28, "track": 5.13, "split": 4.69, "hog_api": 4.46, "refine": 3.13,
+                   "colour": 3.11, "tails": 2.68, "score": 2.66, "heat": 2.29, "resize": 1.98,
+                   "hog": 1.45, "smooth": 0.62, "convert": 0.37}
 
 #: The families every detection with the default feature options runs.
 DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "heat", "label", "refine")
