@@ -63,7 +63,7 @@ CACHE_KEY_PREFIX = f"fastdet-{__version__}-numba-"
 #: once: Numba's set-up for its first compile and the small helpers several
 #: families call.  Compiled one after another in one process, each family
 #: after the first took about this much less than its weight: 0.25-0.46 s on
-#: the Zen 3 of the first weights, 0-0.17 s on the Zen 4 of these (convert
+#: the Zen 3 of the first weights, 0-0.17 s on the Zen 4 of 2026-11-28 (convert
 #: 0.17-0.18 s after another family against 0.32 s alone, HOG 0.95-1.12 s
 #: against 1.11-1.15 s).
 SHARED_SECONDS = 0.15
