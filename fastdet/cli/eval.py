@@ -76,11 +76,23 @@ def cmd_eval(args):
     print(f"precision {report.precision:.3f}  recall {report.recall:.3f}  "
           f"AP{int(args.iou * 100)} {report.ap:.3f}  mean IoU {report.mean_iou:.3f}  "
           f"IoU 10th percentile {report.iou_p10:.3f}")
+    print(_errors_line(report.errors, f"AP{int(args.iou * 100)}"))
     if tracking is not None:
         print(f"MOTA {tracking.mota:.3f}  IDF1 {tracking.idf1:.3f}  "
               f"ID switches {tracking.id_switches}  fragmentations {tracking.fragmentations}  "
               f"MOTP (IoU) {tracking.motp:.3f}  vehicles {tracking.vehicles}")
     return 0
+
+
+def _errors_line(errors, ap_name):
+    """The error breakdown (:func:`fastdet.evaluation.metrics.error_summary`) as two lines."""
+    false, misses, gains = errors["false_positives"], errors["misses"], errors["ap_gain"]
+    described = {"duplicate": "duplicates", "localisation": "on a vehicle at IoU 0.1-0.5",
+                 "difficult": "on difficult vehicles", "background": "on background"}
+    kinds = ", ".join(f"{false[kind]} {text}" for kind, text in described.items())
+    gained = ", ".join(f"{kind} {gains[kind]:+.3f}" for kind in (*described, "missed"))
+    return (f"false positives: {kinds}; misses: {misses['near']} with a false positive near, "
+            f"{misses['missed']} without\n{ap_name} gained by fixing each kind: {gained}")
 
 
 def _detect_images(detector, image_dir, annotations):

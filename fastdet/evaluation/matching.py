@@ -23,6 +23,7 @@ import numpy as np
 
 from ..detector.geometry import as_box_array, cover_matrix, iou_matrix
 from ..errors import InputError
+from .errors import classify_errors
 
 #: Label of a prediction matched to a non-difficult ground-truth box.
 TRUE_POSITIVE = 1
@@ -59,6 +60,15 @@ class ImageMatch:
     gt_found : ndarray of bool, shape (M,)
         Which ground-truth boxes a true positive matched (always ``False``
         for difficult ones).
+    error_kinds : ndarray of int8, shape (N,)
+        Each false positive's kind, an index into
+        :data:`~.errors.FALSE_BOX_KINDS` (duplicate, localisation, difficult,
+        background); :data:`~.errors.NOT_AN_ERROR` for the other predictions.
+    error_vehicles : ndarray of int64, shape (N,)
+        The ground-truth box a duplicate or a localisation error lies on, else -1.
+    near_misses : ndarray of bool, shape (M,)
+        Missed non-difficult boxes that a false positive overlaps at IoU
+        :data:`~.errors.NEAR_IOU` or more.
     """
 
     labels: np.ndarray
@@ -67,6 +77,9 @@ class ImageMatch:
     matched_gt: np.ndarray
     n_positives: int
     gt_found: np.ndarray
+    error_kinds: np.ndarray
+    error_vehicles: np.ndarray
+    near_misses: np.ndarray
 
     @property
     def tp(self):
@@ -172,5 +185,8 @@ def match_image(pred_boxes, pred_scores, gt_boxes, gt_difficult=None, iou_thresh
         labels[ignore] = IGNORED
         matched_gt[ignore] = best_hard[ignore]
         matched_iou[ignore] = iou[ignore, best_hard[ignore]]
+    kinds, vehicles, near_misses = classify_errors(iou, labels == FALSE_POSITIVE, gt_found,
+                                                   gt_difficult, iou_threshold)
     return ImageMatch(labels=labels, scores=pred_scores, ious=matched_iou, matched_gt=matched_gt,
-                      n_positives=int(np.count_nonzero(~gt_difficult)), gt_found=gt_found)
+                      n_positives=int(np.count_nonzero(~gt_difficult)), gt_found=gt_found,
+                      error_kinds=kinds, error_vehicles=vehicles, near_misses=near_misses)

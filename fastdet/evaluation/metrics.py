@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from .annotations import ground_truth_arrays
+from .errors import FALSE_BOX_KINDS, LOCALISATION
 from .matching import DIFFICULT_COVER, FALSE_POSITIVE, IGNORED, TRUE_POSITIVE, match_image
 
 
@@ -90,6 +91,8 @@ class EvalReport:
     iou_threshold : float
     difficult_cover : float or None
         The coverage rule used for difficult boxes (``None``: plain VOC).
+    errors : dict
+        What the false positives and misses are (:func:`error_summary`).
     per_image : dict of str to ImageMatch
 
     Notes
@@ -115,6 +118,7 @@ class EvalReport:
     ignored: int
     iou_threshold: float
     difficult_cover: float | None = DIFFICULT_COVER
+    errors: dict = field(default_factory=dict)
     per_image: dict = field(default_factory=dict, repr=False)
 
     def to_dict(self, per_image=True):
@@ -131,7 +135,7 @@ class EvalReport:
         """
         summary = {name: getattr(self, name) for name in
                    ("precision", "recall", "ap", "mean_iou", "iou_p10", "tp", "fp", "fn", "n_gt",
-                    "ignored", "iou_threshold", "difficult_cover")}
+                    "ignored", "iou_threshold", "difficult_cover", "errors")}
         if per_image:
             summary["images"] = {name: {"tp": match.tp, "fp": match.fp, "fn": match.fn,
                                         "ignored": match.ignored}
@@ -194,18 +198,78 @@ def evaluate(results, annotations, iou_threshold=0.5, difficult_cover=DIFFICULT_
     fp = int(np.count_nonzero(labels == FALSE_POSITIVE))
     n_gt = sum(m.n_positives for m in matches)
     matched = ious[labels == TRUE_POSITIVE]
+    ap = average_precision(labels, scores, n_gt)
     return EvalReport(
         precision=tp / (tp + fp) if tp + fp else 1.0,
         recall=tp / n_gt if n_gt else 1.0,
-        ap=average_precision(labels, scores, n_gt),
+        ap=ap,
         mean_iou=float(matched.mean()) if tp else 0.0,
         iou_p10=float(np.percentile(matched, 10)) if tp else 0.0,
         tp=tp, fp=fp, fn=n_gt - tp, n_gt=n_gt,
         ignored=int(np.count_nonzero(labels == IGNORED)),
         iou_threshold=float(iou_threshold),
         difficult_cover=None if difficult_cover is None else float(difficult_cover),
+        errors=error_summary(matches, ap),
         per_image=per_image,
     )
+
+
+def error_summary(matches, ap):
+    """The false positives and misses of several images by kind, and what fixing each kind gains.
+
+    Kinds as :mod:`.errors` defines them.  The gain of a kind is TIDE's dAP:
+    the AP once an oracle fixes every error of that kind and nothing else,
+    minus ``ap``.  Duplicates, boxes on difficult vehicles and boxes on
+    background are fixed by dropping them; a localisation error becomes a
+    true positive of its vehicle when no box found that vehicle (the
+    highest-scoring such box, in ranking order), and is dropped otherwise;
+    misses without a false positive near them are fixed by not requiring
+    those vehicles.
+
+    Parameters
+    ----------
+    matches : list of ImageMatch
+    ap : float
+        AP of the predictions as they are (:func:`average_precision`).
+
+    Returns
+    -------
+    dict
+        ``{"false_positives": {kind: count}, "misses": {"near": n, "missed":
+        n}, "ap_gain": {kind: gain, ..., "missed": gain}}``.
+    """
+    labels = np.concatenate([m.labels for m in matches] or [np.zeros(0, np.int8)])
+    scores = np.concatenate([m.scores for m in matches] or [np.zeros(0)])
+    kinds = np.concatenate([m.error_kinds for m in matches] or [np.zeros(0, np.int8)])
+    # A vehicle is (image, box) once the images are pooled.
+    vehicles = [(image, int(box)) for image, m in enumerate(matches) for box in m.error_vehicles]
+    n_gt = sum(m.n_positives for m in matches)
+    near = sum(int(np.count_nonzero(m.near_misses)) for m in matches)
+    missed = sum(m.fn for m in matches) - near
+    counts = {name: int(np.count_nonzero(kinds == code)) for code, name in enumerate(FALSE_BOX_KINDS)}
+    gains = {}
+    for code, name in enumerate(FALSE_BOX_KINDS):
+        fixed = labels.copy()
+        if code == LOCALISATION:
+            taken = set()
+            for p in np.argsort(-scores, kind="stable"):
+                if kinds[p] != LOCALISATION:
+                    continue
+                found = _vehicle_found(matches, vehicles[p])
+                fixed[p] = IGNORED if found or vehicles[p] in taken else TRUE_POSITIVE
+                taken.add(vehicles[p])
+        else:
+            fixed[kinds == code] = IGNORED
+        gains[name] = average_precision(fixed, scores, n_gt) - ap
+    gains["missed"] = average_precision(labels, scores, n_gt - missed) - ap if missed else 0.0
+    return {"false_positives": counts, "misses": {"near": near, "missed": missed},
+            "ap_gain": gains}
+
+
+def _vehicle_found(matches, vehicle):
+    """Whether a true positive found ``vehicle``, an ``(image index, box index)`` pair."""
+    image, box = vehicle
+    return bool(matches[image].gt_found[box])
 
 
 def _boxes_and_scores(result):

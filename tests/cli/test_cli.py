@@ -99,6 +99,17 @@ def test_eval_prints_the_four_figures(capsys, model_path, data_dir):
     report = json.loads(capsys.readouterr().out)
     for key in ("precision", "recall", "ap", "mean_iou"):
         assert 0.0 <= report[key] <= 1.0
+    errors = report["errors"]
+    assert sum(errors["false_positives"].values()) == report["fp"]
+    assert errors["misses"]["near"] + errors["misses"]["missed"] == report["fn"]
+
+
+def test_eval_text_report_names_the_kinds_of_error(capsys, data_dir):
+    images = data_dir / "test_images"
+    assert main(["eval", str(images / "annotations.json"), str(images), "--threads", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[2].startswith("false positives: ") and "on background" in lines[2]
+    assert lines[3].startswith("AP50 gained by fixing each kind: duplicate ")
 
 
 def test_eval_voc_switch_selects_the_plain_rule(capsys, data_dir):
