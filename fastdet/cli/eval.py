@@ -76,7 +76,7 @@ def cmd_eval(args):
     print(f"precision {report.precision:.3f}  recall {report.recall:.3f}  "
           f"AP{int(args.iou * 100)} {report.ap:.3f}  mean IoU {report.mean_iou:.3f}  "
           f"IoU 10th percentile {report.iou_p10:.3f}")
-    print(_errors_line(report.errors, f"AP{int(args.iou * 100)}"))
+    print(_errors_lines(report.errors, args.iou))
     if tracking is not None:
         print(f"MOTA {tracking.mota:.3f}  IDF1 {tracking.idf1:.3f}  "
               f"ID switches {tracking.id_switches}  fragmentations {tracking.fragmentations}  "
@@ -84,15 +84,19 @@ def cmd_eval(args):
     return 0
 
 
-def _errors_line(errors, ap_name):
+def _errors_lines(errors, iou_threshold):
     """The error breakdown (:func:`fastdet.evaluation.metrics.error_summary`) as two lines."""
+    from ..evaluation.errors import NEAR_IOU
+
     false, misses, gains = errors["false_positives"], errors["misses"], errors["ap_gain"]
-    described = {"duplicate": "duplicates", "localisation": "on a vehicle at IoU 0.1-0.5",
+    described = {"duplicate": "duplicates",
+                 "localisation": f"on a vehicle at IoU {NEAR_IOU:g}-{iou_threshold:g}",
                  "difficult": "on difficult vehicles", "background": "on background"}
     kinds = ", ".join(f"{false[kind]} {text}" for kind, text in described.items())
     gained = ", ".join(f"{kind} {gains[kind]:+.3f}" for kind in (*described, "missed"))
     return (f"false positives: {kinds}; misses: {misses['near']} with a false positive near, "
-            f"{misses['missed']} without\n{ap_name} gained by fixing each kind: {gained}")
+            f"{misses['missed']} without\nAP{int(iou_threshold * 100)} gained by fixing each "
+            f"kind: {gained}")
 
 
 def _detect_images(detector, image_dir, annotations):

@@ -91,8 +91,8 @@ def classify_errors(iou, false_box, gt_found, gt_difficult, iou_threshold, near=
         [NOT_AN_ERROR, DUPLICATE, LOCALISATION, DIFFICULT], BACKGROUND).astype(np.int8)
     vehicle = np.full(n_pred, -1, dtype=np.int64)
     if n_gt:
-        vehicle = np.select([kinds == DUPLICATE, kinds == LOCALISATION],
-                            [found_iou.argmax(axis=1), normal_iou.argmax(axis=1)], -1).astype(np.int64)
+        vehicle[kinds == DUPLICATE] = found_iou.argmax(axis=1)[kinds == DUPLICATE]
+        vehicle[kinds == LOCALISATION] = normal_iou.argmax(axis=1)[kinds == LOCALISATION]
     missed = normal & ~gt_found
     near_miss = missed & (iou[false_box] >= near).any(axis=0)
     return kinds, vehicle, near_miss

@@ -246,7 +246,8 @@ def error_summary(matches, ap):
     n_gt = sum(m.n_positives for m in matches)
     near = sum(int(np.count_nonzero(m.near_misses)) for m in matches)
     missed = sum(m.fn for m in matches) - near
-    counts = {name: int(np.count_nonzero(kinds == code)) for code, name in enumerate(FALSE_BOX_KINDS)}
+    counts = {name: int(np.count_nonzero(kinds == code))
+              for code, name in enumerate(FALSE_BOX_KINDS)}
     gains = {}
     for code, name in enumerate(FALSE_BOX_KINDS):
         fixed = labels.copy()

@@ -1,4 +1,5 @@
-"""Tests for the error kinds of ``fastdet.evaluation.errors`` and the AP gains of ``error_summary``."""
+"""Tests for the error kinds of ``fastdet.evaluation.errors`` and the AP gains of
+``fastdet.evaluation.metrics.error_summary``."""
 
 from __future__ import annotations
 
