@@ -23,7 +23,7 @@ import numpy as np
 
 from ..detector.geometry import as_box_array, cover_matrix, iou_matrix
 from ..errors import InputError
-from .errors import classify_errors
+from .errors import FALSE_BOX_KINDS, classify_errors
 
 #: Label of a prediction matched to a non-difficult ground-truth box.
 TRUE_POSITIVE = 1
@@ -69,6 +69,12 @@ class ImageMatch:
     near_misses : ndarray of bool, shape (M,)
         Missed non-difficult boxes that a false positive overlaps at IoU
         :data:`~.errors.NEAR_IOU` or more.
+    pred_boxes : ndarray of float64, shape (N, 4)
+        The predictions' boxes.
+    gt_boxes : ndarray of float64, shape (M, 4)
+        The ground-truth boxes.
+    gt_difficult : ndarray of bool, shape (M,)
+        Which of them are difficult.
     """
 
     labels: np.ndarray
@@ -80,6 +86,9 @@ class ImageMatch:
     error_kinds: np.ndarray
     error_vehicles: np.ndarray
     near_misses: np.ndarray
+    pred_boxes: np.ndarray
+    gt_boxes: np.ndarray
+    gt_difficult: np.ndarray
 
     @property
     def tp(self):
@@ -100,6 +109,28 @@ class ImageMatch:
     def ignored(self):
         """Number of predictions on difficult boxes."""
         return int(np.count_nonzero(self.labels == IGNORED))
+
+    def errors(self):
+        """The false positives and misses, JSON-ready.
+
+        Returns
+        -------
+        dict
+            ``{"false_positives": [{"box", "score", "kind"}, ...], "misses":
+            [{"box", "near"}, ...]}``, boxes as lists of numbers, false
+            positives in the order the predictions were given.
+        """
+        false = [{"box": _numbers(self.pred_boxes[p]), "score": float(self.scores[p]),
+                  "kind": FALSE_BOX_KINDS[self.error_kinds[p]]}
+                 for p in np.flatnonzero(self.labels == FALSE_POSITIVE)]
+        misses = [{"box": _numbers(self.gt_boxes[g]), "near": bool(self.near_misses[g])}
+                  for g in np.flatnonzero(~self.gt_found & ~self.gt_difficult)]
+        return {"false_positives": false, "misses": misses}
+
+
+def _numbers(box):
+    """A box as JSON numbers: integers where the coordinates are whole."""
+    return [int(v) if float(v).is_integer() else float(v) for v in box]
 
 
 def match_image(pred_boxes, pred_scores, gt_boxes, gt_difficult=None, iou_threshold=0.5,
@@ -189,4 +220,5 @@ def match_image(pred_boxes, pred_scores, gt_boxes, gt_difficult=None, iou_thresh
                                                    gt_difficult, iou_threshold)
     return ImageMatch(labels=labels, scores=pred_scores, ious=matched_iou, matched_gt=matched_gt,
                       n_positives=int(np.count_nonzero(~gt_difficult)), gt_found=gt_found,
-                      error_kinds=kinds, error_vehicles=vehicles, near_misses=near_misses)
+                      error_kinds=kinds, error_vehicles=vehicles, near_misses=near_misses,
+                      pred_boxes=pred_boxes, gt_boxes=gt_boxes, gt_difficult=gt_difficult)

@@ -127,7 +127,9 @@ class EvalReport:
         Parameters
         ----------
         per_image : bool
-            Include ``{"images": {name: {"tp", "fp", "fn", "ignored"}}}``.
+            Include ``{"images": {name: {"tp", "fp", "fn", "ignored",
+            "false_positives", "misses"}}}``, the last two as
+            :meth:`~.matching.ImageMatch.errors` gives them.
 
         Returns
         -------
@@ -138,7 +140,7 @@ class EvalReport:
                     "ignored", "iou_threshold", "difficult_cover", "errors")}
         if per_image:
             summary["images"] = {name: {"tp": match.tp, "fp": match.fp, "fn": match.fn,
-                                        "ignored": match.ignored}
+                                        "ignored": match.ignored, **match.errors()}
                                  for name, match in self.per_image.items()}
         return summary
 

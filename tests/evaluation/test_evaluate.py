@@ -243,7 +243,15 @@ def test_evaluate_pools_images_by_score():
     # Precision envelope at the two recall steps: 1 and 2/3.
     assert report.ap == pytest.approx(1 / 3 * 1.0 + 1 / 3 * 2 / 3)
     assert set(report.per_image) == {"a.jpg", "b.jpg", "c.jpg"}
-    assert report.to_dict()["images"]["a.jpg"] == {"tp": 1, "fp": 1, "fn": 1, "ignored": 1}
+    images = report.to_dict()["images"]
+    assert images["a.jpg"] == {
+        "tp": 1, "fp": 1, "fn": 1, "ignored": 1,
+        "false_positives": [{"box": [0, 0, 10, 10], "score": 0.4, "kind": "duplicate"}],
+        "misses": [{"box": [20, 0, 30, 10], "near": False}]}
+    # Detections keep float32 scores.
+    assert images["b.jpg"]["false_positives"] == [
+        {"box": [100, 100, 110, 110], "score": float(np.float32(0.7)), "kind": "background"}]
+    assert images["c.jpg"]["false_positives"] == images["c.jpg"]["misses"] == []
 
 
 def test_evaluate_perfect_detector():
