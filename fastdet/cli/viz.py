@@ -67,7 +67,8 @@ def add_viz_parser(subparsers):
         "detect", help="hit windows, heat map, components and final boxes of one frame")
     detect.add_argument("frame", metavar="FRAME")
     detect.add_argument("--annotations", metavar="A.json",
-                        help="draw this frame's ground-truth boxes (looked up by file name)")
+                        help="draw this frame's ground-truth boxes (looked up by file name) "
+                             "and say of each detection what fastdet eval counts it as")
     _add_model_option(detect)
     _add_config_option(detect)
     _add_out_option(detect, "viz_detect_<stem>.png")
@@ -161,7 +162,7 @@ def cmd_viz_detect(args):
 
     out = _output_path(args, f"viz_detect_{Path(args.frame).stem}.png")
     frame = read_image(args.frame)
-    ground_truth = None
+    ground_truth = verdicts = None
     if args.annotations:
         from ..evaluation.annotations import load_annotations
 
@@ -170,4 +171,16 @@ def cmd_viz_detect(args):
         if name not in annotations:
             raise InputError(f"{args.annotations} has no entry for {name}")
         ground_truth = annotations[name]
-    return _report(detect_figure(frame, make_detector(args), out, ground_truth=ground_truth))
+        verdicts = _verdicts_against(ground_truth)
+    return _report(detect_figure(frame, make_detector(args), out, ground_truth=ground_truth,
+                                 verdicts=verdicts))
+
+
+def _verdicts_against(objects):
+    """``verdicts(boxes, scores)``: each box's verdict against the annotated ``objects``
+    (:meth:`fastdet.evaluation.matching.ImageMatch.verdicts`, the rules of ``fastdet eval``)."""
+    from ..evaluation.annotations import ground_truth_arrays
+    from ..evaluation.matching import match_image
+
+    gt_boxes, gt_difficult = ground_truth_arrays(objects)
+    return lambda boxes, scores: match_image(boxes, scores, gt_boxes, gt_difficult).verdicts()

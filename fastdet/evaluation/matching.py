@@ -110,6 +110,12 @@ class ImageMatch:
         """Number of predictions on difficult boxes."""
         return int(np.count_nonzero(self.labels == IGNORED))
 
+    def verdicts(self):
+        """One word per prediction, in the order given: ``"match"``, ``"ignored"`` (on a
+        difficult vehicle, by the rules) or the kind of false positive."""
+        return ["match" if label == TRUE_POSITIVE else "ignored" if label == IGNORED
+                else FALSE_BOX_KINDS[kind] for label, kind in zip(self.labels, self.error_kinds)]
+
     def errors(self):
         """The false positives and misses, JSON-ready.
 

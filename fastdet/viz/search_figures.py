@@ -112,7 +112,12 @@ def detect_figure_size(frame_shape, plans):
     return DETECT_FIGURE_WIDTH, 4 * (panel_h + _DETECT_TITLE_PX) + 8
 
 
-def detect_figure(frame_bgr, detector, path, ground_truth=None):
+#: Box colours of the final panel by verdict (see ``detect_figure``'s ``verdicts``).
+VERDICT_COLOURS = {"match": "lime", "ignored": "lightgrey", "duplicate": "magenta",
+                   "localisation": "orange", "difficult": "yellow", "background": "red"}
+
+
+def detect_figure(frame_bgr, detector, path, ground_truth=None, verdicts=None):
     """The detector's stages on one frame, in four panels.
 
     Top to bottom: the hit windows coloured by SVM margin; the heat map with
@@ -130,6 +135,10 @@ def detect_figure(frame_bgr, detector, path, ground_truth=None):
         "difficult": bool}``, as :func:`fastdet.evaluation.annotations.load_annotations`
         gives them), drawn dashed white in the hits and boxes panels
         (dotted when ``difficult``).
+    verdicts : callable, optional
+        ``verdicts(boxes, scores)`` gives one word per final box (a key of
+        :data:`VERDICT_COLOURS`: a match, a box the rules ignore, or a kind
+        of false positive), written beside its score and setting its colour.
 
     Returns
     -------
@@ -211,13 +220,19 @@ def detect_figure(frame_bgr, detector, path, ground_truth=None):
         axes.imshow((np.ma.masked_equal(labels, 0) - 1) % 20, cmap="tab20", vmin=0, vmax=19,
                     alpha=0.8, interpolation="nearest", aspect="auto")
 
-    axes = panel(3, f"{len(detections)} detections after the box filters (green, heat peak "
-                    f"above each){truth_note}", rgb(frame))
+    words = verdicts(detections.xyxy, detections.score) if verdicts else [""] * len(detections)
+    colours = [VERDICT_COLOURS.get(word, "lime") for word in words]
+    shown_as = ("coloured by verdict, heat peak and verdict above each" if verdicts
+                else "green, heat peak above each")
+    axes = panel(3, f"{len(detections)} detections after the box filters ({shown_as})"
+                    f"{truth_note}", rgb(frame))
     _draw_ground_truth(axes, ground_truth)
     if len(detections):
-        outline_boxes(axes, detections.xyxy, ["lime"], linewidth=2.0)
-        for (x1, y1, _, _), score in zip(detections.xyxy.tolist(), detections.score.tolist()):
-            axes.text(x1, y1 - 3, f"{score:.1f}", color="lime", fontsize=10, va="bottom")
+        outline_boxes(axes, detections.xyxy, colours, linewidth=2.0)
+        for (x1, y1, _, _), score, word, colour in zip(detections.xyxy.tolist(),
+                                                       detections.score.tolist(), words, colours):
+            axes.text(x1, y1 - 3, f"{score:.1f} {word}".strip(), color=colour, fontsize=10,
+                      va="bottom")
     for axes in frame_panels:
         axes.set_xlim(-0.5, width - 0.5)
         axes.set_ylim(view_y1 - 0.5, view_y0 - 0.5)

@@ -45,6 +45,12 @@ def test_each_kind_of_false_box():
     assert match.near_misses.tolist() == [False, True, False]
 
 
+def test_verdicts_name_each_prediction():
+    pred = [A, [5, 5, 105, 105], [0, 300, 100, 400], [900, 900, 950, 950]]
+    match = match_image(pred, [0.9, 0.8, 0.7, 0.6], [A, HARD], [False, True])
+    assert match.verdicts() == ["match", "duplicate", "ignored", "background"]
+
+
 def test_ignored_boxes_are_not_errors():
     # Half inside the difficult car: the coverage rule ignores it, so it is no error.
     match = match_image([[0, 300, 100, 500]], [1.0], [HARD], [True])

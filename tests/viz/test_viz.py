@@ -142,6 +142,47 @@ def test_detect(model_path, frame_path, data_dir, tmp_path):
     assert_figure(out, size)
 
 
+def test_detect_figure_asks_the_verdict_of_every_final_box(model_path, frame_path, tmp_path):
+    from fastdet.detector.detector import Detector
+    from fastdet.detector.model import load_model
+    from fastdet.files.images import read_image
+    from fastdet.viz.search_figures import VERDICT_COLOURS, detect_figure
+
+    detector = Detector(load_model(model_path))
+    frame = read_image(frame_path)
+    asked = []
+
+    def verdicts(boxes, scores):
+        asked.append((np.array(boxes), np.array(scores)))
+        return ["match", "background"][:len(boxes)] + ["ignored"] * (len(boxes) - 2)
+
+    detect_figure(frame, detector, tmp_path / "d.png", verdicts=verdicts)
+    expected = detector(frame)
+    assert len(asked) == 1 and len(expected) > 0
+    np.testing.assert_array_equal(asked[0][0], expected.xyxy)
+    np.testing.assert_array_equal(asked[0][1], expected.score)
+    assert {"match", "ignored", "duplicate", "localisation", "difficult",
+            "background"} == set(VERDICT_COLOURS)
+
+
+def test_viz_detect_judges_boxes_by_the_eval_rules(model_path, frame_path, data_dir, tmp_path,
+                                                   monkeypatch):
+    import fastdet.viz.search_figures as search_figures
+
+    seen = {}
+
+    def capture(frame, detector, path, ground_truth=None, verdicts=None):
+        seen["truth"], seen["verdicts"] = ground_truth, verdicts
+        return path
+
+    monkeypatch.setattr(search_figures, "detect_figure", capture)
+    run_viz(["detect", frame_path, "--model", model_path, "--out", tmp_path / "d.png",
+             "--annotations", data_dir / "test_images" / "annotations.json"])
+    truth = [obj for obj in seen["truth"] if not obj["difficult"]]
+    boxes = np.array([obj["box"] for obj in truth] + [[0, 0, 5, 5]], float)
+    assert seen["verdicts"](boxes, np.ones(len(boxes))) == ["match"] * len(truth) + ["background"]
+
+
 def test_default_output_names(model_path, frame_path, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     run_viz(["windows", frame_path, "--model", model_path])
