@@ -86,7 +86,7 @@ def cmd_eval(args):
 
 def _errors_lines(errors, iou_threshold):
     """The error breakdown (:func:`fastdet.evaluation.metrics.error_summary`) as two lines."""
-    from ..evaluation.errors import NEAR_IOU
+    from ..evaluation.error_kinds import NEAR_IOU
 
     false, misses, gains = errors["false_positives"], errors["misses"], errors["ap_gain"]
     described = {"duplicate": "duplicates",

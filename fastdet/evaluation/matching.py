@@ -23,7 +23,7 @@ import numpy as np
 
 from ..detector.geometry import as_box_array, cover_matrix, iou_matrix
 from ..errors import InputError
-from .errors import FALSE_BOX_KINDS, classify_errors
+from .error_kinds import FALSE_BOX_KINDS, classify_errors
 
 #: Label of a prediction matched to a non-difficult ground-truth box.
 TRUE_POSITIVE = 1
@@ -62,13 +62,13 @@ class ImageMatch:
         for difficult ones).
     error_kinds : ndarray of int8, shape (N,)
         Each false positive's kind, an index into
-        :data:`~.errors.FALSE_BOX_KINDS` (duplicate, localisation, difficult,
-        background); :data:`~.errors.NOT_AN_ERROR` for the other predictions.
+        :data:`~.error_kinds.FALSE_BOX_KINDS` (duplicate, localisation, difficult,
+        background); :data:`~.error_kinds.NOT_AN_ERROR` for the other predictions.
     error_vehicles : ndarray of int64, shape (N,)
         The ground-truth box a duplicate or a localisation error lies on, else -1.
     near_misses : ndarray of bool, shape (M,)
         Missed non-difficult boxes that a false positive overlaps at IoU
-        :data:`~.errors.NEAR_IOU` or more.
+        :data:`~.error_kinds.NEAR_IOU` or more.
     pred_boxes : ndarray of float64, shape (N, 4)
         The predictions' boxes.
     gt_boxes : ndarray of float64, shape (M, 4)

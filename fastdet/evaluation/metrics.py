@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import InputError
 from .annotations import ground_truth_arrays
-from .errors import FALSE_BOX_KINDS, LOCALISATION
+from .error_kinds import FALSE_BOX_KINDS, LOCALISATION
 from .matching import DIFFICULT_COVER, FALSE_POSITIVE, IGNORED, TRUE_POSITIVE, match_image
 
 
@@ -219,7 +219,7 @@ def evaluate(results, annotations, iou_threshold=0.5, difficult_cover=DIFFICULT_
 def error_summary(matches, ap):
     """The false positives and misses of several images by kind, and what fixing each kind gains.
 
-    Kinds as :mod:`.errors` defines them.  The gain of a kind is TIDE's dAP:
+    Kinds as :mod:`.error_kinds` defines them.  The gain of a kind is TIDE's dAP:
     the AP once an oracle fixes every error of that kind and nothing else,
     minus ``ap``.  Duplicates, boxes on difficult vehicles and boxes on
     background are fixed by dropping them; a localisation error becomes a

@@ -1,4 +1,4 @@
-"""Tests for the error kinds of ``fastdet.evaluation.errors`` and the AP gains of
+"""Tests for the error kinds of ``fastdet.evaluation.error_kinds`` and the AP gains of
 ``fastdet.evaluation.metrics.error_summary``."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from fastdet.detector.geometry import iou_matrix
-from fastdet.evaluation.errors import (
+from fastdet.evaluation.error_kinds import (
     BACKGROUND,
     DIFFICULT,
     DUPLICATE,
