@@ -446,3 +446,54 @@ def _naive_fma_one(x, y, z):
     if len(ties) > 1:
         ties = [v for v in ties if int(np.float32(v).view(np.uint32)) % 2 == 0]
     return ties[0]
+
+
+def opencv_hls(image, lanes=8):
+    """``cv2.cvtColor(image, cv2.COLOR_BGR2HLS)`` as OpenCV converts it where its
+    SIMD code takes runs of ``lanes`` pixels (8: its AVX2 code), on any CPU.
+
+    Reference for ``fastdet.kernels.convert.bgr_to_hls``.  OpenCV converts
+    each row in chunks of 256 pixels, whole runs of ``lanes`` with its SIMD
+    code and the rest with scalar code that rounds otherwise; which runs it
+    takes depends on the CPU it runs on (16 with AVX-512).  Each pixel's two
+    values are read off OpenCV itself: the SIMD one from a row padded to
+    whole runs of 16 (SIMD on every build), the scalar one from a row of one
+    pixel; then each pixel takes the one of its place.
+    """
+    import cv2
+
+    image = np.ascontiguousarray(image)
+    height, width = image.shape[:2]
+    padded = np.zeros((height, -(-width // 16) * 16, 3), np.uint8)
+    padded[:, :width] = image
+    simd = cv2.cvtColor(padded, cv2.COLOR_BGR2HLS)[:, :width]
+    scalar = cv2.cvtColor(image.reshape(-1, 1, 3), cv2.COLOR_BGR2HLS).reshape(image.shape)
+    x = np.arange(width)
+    start = x // 256 * 256
+    takes_simd = x - start < np.minimum(256, width - start) // lanes * lanes
+    return np.where(takes_simd[None, :, None], simd, scalar)
+
+
+#: A BGR colour OpenCV's SIMD and scalar HLS code convert apart.
+OPENCV_RULES_APART = (190, 116, 116)
+
+
+def opencv_simd_lanes():
+    """Pixels per SIMD run of this OpenCV's BGR to HLS code on this CPU (4, 8
+    or 16), or None: counted on one 63-pixel row of a colour its two codes
+    convert apart (runs of 4, 8 or 16 leave 60, 56 or 48 SIMD pixels)."""
+    import cv2
+
+    def row(width):
+        pixels = np.empty((1, width, 3), np.uint8)
+        pixels[:] = OPENCV_RULES_APART
+        return cv2.cvtColor(pixels, cv2.COLOR_BGR2HLS)[0]
+
+    simd_value, scalar_value = row(16)[0], row(1)[0]
+    assert (simd_value != scalar_value).any(), "the probe colour no longer tells the codes apart"
+    probe = row(63)
+    for lanes in (4, 8, 16):
+        count = 63 - 63 % lanes
+        if (probe[:count] == simd_value).all() and (probe[count:] == scalar_value).all():
+            return lanes
+    return None

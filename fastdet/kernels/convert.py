@@ -1,6 +1,6 @@
 """BGR to HLS conversion of uint8 images, as OpenCV's
-``cv2.cvtColor(image, cv2.COLOR_BGR2HLS)``: bit-identical at every width
-(see *OpenCV's two rules*).
+``cv2.cvtColor(image, cv2.COLOR_BGR2HLS)``: bit-identical to its AVX2 code at
+every width, on every CPU (see *OpenCV's two rules*).
 
 OpenCV's rule for 8-bit images, as reproduced here (all float32 unless noted;
 the tests compare every one of the 2**24 colours with OpenCV):
@@ -27,17 +27,22 @@ fused multiply-add is emulated in the scalar tail loop as
 in float64); the tests check both paths on every colour.
 
 OpenCV's two rules: OpenCV itself is not uniform.  It converts each row in
-chunks of 256 pixels with SIMD code for whole runs of 8 and scalar code for
-the rest of a chunk (``width % 8`` pixels per chunk, none for widths that
-are multiples of 8, such as the detector's 1280).  Its scalar code, as its
-AVX2 build compiles it, rounds differently: ``s`` divides by
+chunks of 256 pixels with SIMD code for whole runs of its vector width and
+scalar code for the rest of a chunk.  Its scalar code, as its AVX2 and
+AVX-512 builds compile it, rounds differently: ``s`` divides by
 ``(2 - vmax) - vmin``; the red branch's hue is the rounded product
 ``hd * inv`` plus 360 (a second rounding) when negative, while the green and
 blue branches' ``hd * inv + 120`` and ``+ 240`` are fused into one FMA by the
-compiler.  The tail loop applies that rule to those pixels; the tests check
-it on every colour (``test_all_colours_tail_path``, width 15).  On CPUs
-without AVX2, OpenCV runs builds without FMA, which round both kinds of
-pixels differently again; every machine fastdet has run on has AVX2.
+compiler.  The vector width depends on the CPU: runs of 8 with its AVX2 code,
+of 16 where it runs its AVX-512 code (a 15-pixel row is then scalar all
+through).  fastdet follows the AVX2 code's placement on every CPU, so that its
+output does not depend on the machine: SIMD rule for whole runs of 8,
+``width % 8`` scalar-rule pixels per chunk (none for widths that are
+multiples of 8, such as the detector's 960, 1280 and 1920).  The tests check
+every colour on both rules against OpenCV itself (``tests/naive.py``'s
+``opencv_hls``, which reads each pixel's two values off OpenCV on any CPU).
+On CPUs without AVX2, OpenCV runs builds without FMA, which round both kinds
+of pixels differently again; every machine fastdet has run on has AVX2.
 """
 
 import numpy as np
@@ -51,8 +56,8 @@ from .inner import CALLED_FROM_KERNELS_ONLY
 #: Pixels per vector block.
 _BLOCK = 16
 _BLOCK_BYTES = 3 * _BLOCK
-#: OpenCV's row chunk and float SIMD width (its AVX2 code) in cvtColor: the
-#: pixels past the last whole run of lanes of a chunk take its scalar code.
+#: OpenCV's row chunk in cvtColor, and the SIMD run of its AVX2 code: the
+#: pixels past the last whole run of a chunk take its scalar code.
 _CV_CHUNK = 256
 _CV_LANES = 8
 _FLT_EPSILON = float(np.finfo(np.float32).eps)
@@ -182,20 +187,21 @@ def _bgr_to_hls(image, out):
 
 
 @njit(cache=True, nogil=True)
-def _hls_pixels(image, out, first, vector):
-    """``out[:, first:]`` = HLS of ``image[:, first:]`` one pixel at a time, with
-    the rule of OpenCV's code for each pixel; ``vector`` False: the scalar rule
-    for every pixel (for tests)."""
+def _hls_pixels(image, out, first, lanes):
+    """``out[:, first:]`` = HLS of ``image[:, first:]`` one pixel at a time, each
+    by the rule of the OpenCV code that converts it when OpenCV's SIMD runs
+    are ``lanes`` pixels long (``lanes`` 1: every pixel by the SIMD rule;
+    more than 256: every pixel by the scalar rule)."""
     height, width = image.shape[0], image.shape[1]
     for y in range(height):
         row = image[y]
         dest = out[y]
         for x in range(first, width):
             # OpenCV converts each row in chunks of _CV_CHUNK pixels, SIMD
-            # for whole runs of _CV_LANES and its scalar code for the rest.
+            # for whole runs of `lanes` and its scalar code for the rest.
             start = (x // _CV_CHUNK) * _CV_CHUNK
-            simd = x - start < (min(_CV_CHUNK, width - start) // _CV_LANES) * _CV_LANES
-            _hls_scalar(row, dest, x, simd or not vector)
+            simd = x - start < (min(_CV_CHUNK, width - start) // lanes) * lanes
+            _hls_scalar(row, dest, x, simd)
 
 
 @njit(cache=True, error_model="numpy", **CALLED_FROM_KERNELS_ONLY)
@@ -273,7 +279,9 @@ def bgr_to_hls(image, out=None):
     """``cv2.cvtColor(image, cv2.COLOR_BGR2HLS)`` for uint8 images.
 
     Bit-identical to OpenCV's AVX2 code at every width, the pixels it
-    converts with its scalar code included (see the module notes).
+    converts with its scalar code included, on every CPU (see the module
+    notes: on CPUs with AVX-512, OpenCV's own output differs from it past
+    the last whole 16 pixels of a 256-pixel chunk).
 
     Parameters
     ----------
@@ -294,13 +302,14 @@ def bgr_to_hls(image, out=None):
         if blocked:
             _bgr_to_hls(image, out)
         if blocked < image.shape[1]:
-            _hls_pixels(image, out, blocked, True)
+            _hls_pixels(image, out, blocked, _CV_LANES)
     return out
 
 
-def _bgr_to_hls_scalar(image, out=None):
-    """As :func:`bgr_to_hls` with the scalar rule only (for tests)."""
+def _bgr_to_hls_scalar(image, out=None, lanes=1):
+    """As :func:`bgr_to_hls`, every pixel by the one-pixel loop: by default
+    with OpenCV's SIMD rule for each (for tests; see :func:`_hls_pixels`)."""
     image, out = _check(image, out)
     if image.size:
-        _hls_pixels(image, out, 0, False)
+        _hls_pixels(image, out, 0, lanes)
     return out

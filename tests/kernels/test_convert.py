@@ -1,14 +1,22 @@
 """fastdet.kernels.convert.bgr_to_hls against cv2.cvtColor(..., COLOR_BGR2HLS)."""
 
+import json
+import os
+import subprocess
+import sys
+
 import cv2
 import numpy as np
 import pytest
+from naive import OPENCV_RULES_APART, opencv_hls, opencv_simd_lanes
 
 from fastdet.kernels.convert import _bgr_to_hls_scalar, bgr_to_hls
 
 
 def reference(image):
-    return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2HLS)
+    # OpenCV's AVX2 code, which fastdet follows on every CPU (on an AVX-512
+    # CPU OpenCV's own output differs from it past whole runs of 16).
+    return opencv_hls(image)
 
 
 @pytest.fixture(scope="module")
@@ -37,10 +45,73 @@ def test_all_colours_scalar_path(all_colours):
 
 def test_all_colours_tail_path(all_colours):
     # Width 15: every pixel goes through the scalar tail loop of bgr_to_hls,
-    # and OpenCV converts pixels 8-14 of each row with its scalar code.
+    # and OpenCV converts pixels 8-14 of each row with its scalar code (its
+    # AVX2 code), or all 15 (its AVX-512 code, 16 lanes).
     flat = all_colours.reshape(-1, 3)
     image = flat[: (flat.shape[0] // 15) * 15].reshape(-1, 15, 3)
     assert_same(bgr_to_hls(image), image)
+
+
+def test_the_reference_is_this_opencv_on_this_cpu(all_colours):
+    # opencv_hls rebuilt from OpenCV's two codes is OpenCV's own output, with
+    # the runs this OpenCV takes on this CPU (8 or 16 lanes).
+    lanes = opencv_simd_lanes()
+    assert lanes in (8, 16)
+    flat = all_colours.reshape(-1, 3)
+    for width in (13, 15, 24, 300):
+        image = flat[: len(flat) // width * width].reshape(-1, width, 3)
+        assert np.array_equal(opencv_hls(image, lanes), cv2.cvtColor(image, cv2.COLOR_BGR2HLS))
+    if lanes == 16:
+        # Where they part, fastdet follows OpenCV's AVX2 code, not this one.
+        image = flat[: len(flat) // 15 * 15].reshape(-1, 15, 3)
+        assert not np.array_equal(opencv_hls(image, 8), opencv_hls(image, 16))
+
+
+_AVX2_OPENCV = """
+import json
+import numpy as np
+import cv2
+from fastdet.kernels.convert import bgr_to_hls
+from naive import opencv_simd_lanes
+v = np.arange(1 << 24, dtype=np.uint32)
+flat = np.stack([v & 255, (v >> 8) & 255, v >> 16], -1).astype(np.uint8)
+bad = {}
+for width in (15, 24):
+    image = flat[: len(flat) // width * width].reshape(-1, width, 3)
+    bad[width] = int((bgr_to_hls(image) != cv2.cvtColor(image, cv2.COLOR_BGR2HLS)).any(-1).sum())
+print(json.dumps({"lanes": opencv_simd_lanes(), "bad": bad}))
+"""
+
+
+def test_equal_to_opencv_itself_running_its_avx2_code():
+    # OpenCV told not to run its AVX-512 code (a no-op on AVX2 CPUs) runs its
+    # AVX2 code, which fastdet's output then equals on every colour.
+    tests = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, OPENCV_CPU_DISABLE="AVX512-SKX",
+               PYTHONPATH=os.pathsep.join(filter(None, [tests, os.environ.get("PYTHONPATH")])))
+    done = subprocess.run([sys.executable, "-c", _AVX2_OPENCV], env=env, capture_output=True,
+                          text=True, timeout=300, check=True)
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result == {"lanes": 8, "bad": {"15": 0, "24": 0}}
+
+
+@pytest.mark.parametrize("lanes", [4, 8, 16])
+@pytest.mark.parametrize("width", [1, 7, 13, 15, 24, 31, 255, 256, 300, 527])
+def test_each_pixel_takes_the_rule_of_its_place(lanes, width):
+    # Naively: OpenCV's chunks of 256 pixels, SIMD for whole runs of lanes.
+    rng = np.random.default_rng(width * 100 + lanes)
+    image = rng.integers(0, 256, (5, width, 3), dtype=np.uint8)
+    image[:, ::3] = OPENCV_RULES_APART
+    simd = _bgr_to_hls_scalar(image, lanes=1)
+    scalar = _bgr_to_hls_scalar(image, lanes=512)
+    assert not np.array_equal(simd, scalar)
+    x = np.arange(width)
+    start = x // 256 * 256
+    takes_simd = x - start < np.minimum(256, width - start) // lanes * lanes
+    want = np.where(takes_simd[None, :, None], simd, scalar)
+    assert np.array_equal(_bgr_to_hls_scalar(image, lanes=lanes), want)
+    if width < 256:
+        assert takes_simd.sum() == width // lanes * lanes
 
 
 def test_hue_saturation_not_trivial(all_colours):
