@@ -1,9 +1,12 @@
-"""The kernel compile's plan: the families, their split over two processes, and the helper process.
+"""The kernel compile's plan: the families, how two processes share them, and the helper process.
 
 A first run (nothing in the kernel cache for this fastdet, Numba and CPU)
 compiles every kernel family a detection runs, about 15 s of CPU on the
 development machine, and :func:`fastdet.kernels.warmup.warm` spreads that
-over this process and a helper process.  This module holds what both sides
+over this process and a helper process: both go through the families
+heaviest first, and each compiles the next one nobody has claimed
+(:class:`FamilyClaims`), so they end together whatever this CPU's compile
+times are.  This module holds what both sides
 share and imports nothing heavy (no NumPy, no Numba): so the ``fastdet``
 command can start the helper as its very first step (:func:`start_early`),
 and the helper compiles while this process is still importing NumPy, OpenCV
@@ -15,6 +18,7 @@ from __future__ import annotations
 import atexit
 import hashlib
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -33,22 +37,15 @@ from ._version import __version__
 #: snapping: refine 1.66 against 3.13 here, while most families took
 #: 1.0-1.3 times as long here; with them a cold detection's own process
 #: compiled 11.6 s against the helper's 8.8 s of these.
-#: :func:`split_families` balances two processes with these weights.
+#: They set the order the two compiling processes take families in
+#: (:func:`compile_order`): heaviest first, so that the last to be taken are
+#: short and the two processes end close together.
 COMPILE_WEIGHTS = {"label": 6.28, "track": 5.13, "split": 4.69, "hog_api": 4.46, "refine": 3.13,
                    "colour": 3.11, "tails": 2.68, "score": 2.66, "heat": 2.29, "resize": 1.98,
                    "hog": 1.45, "smooth": 0.62, "convert": 0.37}
 
 #: The families every detection with the default feature options runs.
 DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "heat", "label", "refine")
-
-#: Seconds a helper process started once this one has imported fastdet
-#: needs before it compiles (Python, NumPy, Numba, fastdet).
-HELPER_START_SECONDS = 0.8
-
-#: The same, for a helper started before this process's own imports
-#: (:func:`start_early`): the two import side by side and start compiling
-#: together.
-EARLY_HELPER_START_SECONDS = 0.0
 
 #: Overrides the user cache folder (the kernels go in its ``kernels/`` subfolder).
 CACHE_ENV_VAR = "FASTDET_CACHE_DIR"
@@ -59,64 +56,79 @@ CACHE_ENV_VAR = "FASTDET_CACHE_DIR"
 CACHE_KEY_PREFIX = f"fastdet-{__version__}-numba-"
 
 
-#: Seconds of each family's weight that a process compiling several pays
-#: once: Numba's set-up for its first compile and the small helpers several
-#: families call.  Compiled one after another in one process, each family
-#: after the first took about this much less than its weight: 0.25-0.46 s on
-#: the Zen 3 of the first weights, 0-0.17 s on the Zen 4 of 2026-11-28 (convert
-#: 0.17-0.18 s after another family against 0.32 s alone, HOG 0.95-1.12 s
-#: against 1.11-1.15 s).
-SHARED_SECONDS = 0.15
+def compile_order(names):
+    """``names`` heaviest first (:data:`COMPILE_WEIGHTS`; unmeasured ones weigh 1 s,
+    ties by name): the order in which both compiling processes take families.
 
-
-def group_seconds(names):
-    """Expected seconds one process takes to compile the families ``names`` one after another."""
-    total = sum(COMPILE_WEIGHTS.get(name, 1.0) for name in names)
-    return total - SHARED_SECONDS * max(len(names) - 1, 0)
-
-
-def split_families(names, helper_start=HELPER_START_SECONDS):
-    """``(here, helper)``: ``names`` in two groups that finish as close together as can be.
-
-    Every way of splitting the few families is tried (an exact partition of
-    :func:`group_seconds`; a greedy split of the weights left the helper
-    0.8-0.9 s behind on a cold detection), with the helper's group starting
-    ``helper_start`` seconds late.  Ties go to the split with fewer families
-    in the helper.  Each group lists its families heaviest first.
+    Taking the heaviest first leaves the light ones for last, where
+    whichever process is free first takes them: the processes end within
+    about the last family's time of each other, on any CPU.  A split fixed
+    by weights measured on one machine does not: the weights of a Zen 3
+    (AVX2) put label, heat and resize in the helper, which on a Zen 4 with
+    AVX-512 (2026-12-02) compiled those for 7.4 s while this process had
+    its share done in 5.9 s.
     """
-    ordered = sorted(names, key=lambda n: (-COMPILE_WEIGHTS.get(n, 1.0), n))
-    best_key, best = None, (ordered, [])
-    for mask in range(1 << len(ordered)):
-        helper = [name for k, name in enumerate(ordered) if mask >> k & 1]
-        here = [name for k, name in enumerate(ordered) if not mask >> k & 1]
-        end = max(group_seconds(here), helper_start + group_seconds(helper))
-        key = (round(end, 6), len(helper), mask)
-        if best_key is None or key < best_key:
-            best_key, best = key, (here, helper)
-    return best
+    return sorted(names, key=lambda name: (-COMPILE_WEIGHTS.get(name, 1.0), name))
+
+
+class FamilyClaims:
+    """Which of two processes compiles which family: the first to claim it.
+
+    A claim is a file created (``O_EXCL``) in a folder both processes know,
+    so each family is compiled once, by the process that got there first.
+
+    Parameters
+    ----------
+    folder : str, optional
+        The folder of an existing set of claims (the helper's side); by
+        default a new temporary one, removed by :meth:`remove`.
+    """
+
+    def __init__(self, folder=None):
+        self.owned = folder is None
+        self.folder = tempfile.mkdtemp(prefix="fastdet-compile-") if folder is None else folder
+
+    def claim(self, name):
+        """Claim family ``name``; False if the other process has (or the claims are gone)."""
+        try:
+            os.close(os.open(os.path.join(self.folder, name),
+                             os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+        except OSError:  # FileExistsError: taken; anything else: the owner has finished
+            return False
+        return True
+
+    def remove(self):
+        """Remove the claims' folder, if this side made it."""
+        if self.owned:
+            shutil.rmtree(self.folder, ignore_errors=True)
 
 
 #: The helper's program: its path without the working directory (which
 #: ``-c`` puts first), with the folder this fastdet came from first unless
-#: the path has it already, then :func:`fastdet.kernels.warmup.main`.
+#: the path has it already, then :func:`fastdet.kernels.warmup.main` (argv:
+#: ``--claims FOLDER FAMILY...``).
 _HELPER_CODE = ("import sys; sys.path[:] = [p for p in sys.path if p]; "
                 "sys.path.insert(0, sys.argv[1]) if sys.argv[1] not in sys.path else None; "
                 "from fastdet.kernels.warmup import main; sys.exit(main(sys.argv[2:]))")
 
 
-def start_helper(names):
-    """A Python process compiling the families ``names`` into the kernel cache.
+def start_helper(names, claims):
+    """A Python process compiling, of the families ``names``, those it claims first.
 
-    The child imports the same fastdet files as this process: Numba files a
-    kernel's cache entries under its source folder, so kernels compiled from
-    another copy (``python -m`` puts the working directory first, and run
-    from a checkout with fastdet installed that is the checkout's copy) would
-    be filed where this process never looks.  It finds the cache folder as
-    this process does (``NUMBA_CACHE_DIR``, inherited, or the same key) and
-    prints one JSON line of seconds per family.
+    It goes through ``names`` in :func:`compile_order` and compiles each
+    family it claims in ``claims`` (a :class:`FamilyClaims`) into the kernel
+    cache, skipping those this process claimed.  The child imports the same
+    fastdet files as this process: Numba files a kernel's cache entries
+    under its source folder, so kernels compiled from another copy (``python
+    -m`` puts the working directory first, and run from a checkout with
+    fastdet installed that is the checkout's copy) would be filed where this
+    process never looks.  It finds the cache folder as this process does
+    (``NUMBA_CACHE_DIR``, inherited, or the same key) and prints one JSON
+    line of seconds per family it compiled.
     """
     package_root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    return subprocess.Popen([sys.executable, "-c", _HELPER_CODE, package_root, *names],
+    return subprocess.Popen([sys.executable, "-c", _HELPER_CODE, package_root, "--claims",
+                             claims.folder, *names],
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
 
 
@@ -165,52 +177,63 @@ def nothing_cached():
     return _writable(base)
 
 
-# The helper start_early started, and the families it compiles, until warm() takes it.
-_early = {"helper": None, "names": ()}
+# The helper start_early started, the families it may compile and their claims,
+# until warm() takes it.
+_early = {"helper": None, "names": (), "claims": None}
 
 
 def start_early(names=DETECTION_FAMILIES):
-    """Start the helper for its share of ``names`` now, if nothing is compiled yet.
+    """Start the helper on ``names`` now, if nothing is compiled yet.
 
     For the ``fastdet`` command's first step, before it imports the rest of
     fastdet: on a machine with two or more cores and a kernel cache this
-    fastdet has never filled (:func:`nothing_cached`), the helper compiles
-    its share (:func:`split_families` with
-    :data:`EARLY_HELPER_START_SECONDS`) while this process imports, and
-    :func:`fastdet.kernels.warmup.warm` waits for it (:func:`take_early`).
-    A helper nobody took is stopped when this process exits.
+    fastdet has never filled (:func:`nothing_cached`), the helper starts
+    compiling ``names`` heaviest first while this process imports; then
+    :func:`fastdet.kernels.warmup.warm` takes it (:func:`take_early`) and
+    compiles the families the helper has not claimed.  A helper nobody took
+    is stopped when this process exits.
 
     Returns
     -------
     list of str
-        The families the helper compiles (empty: no helper started).
+        The families the helper may compile, in its order (empty: no helper
+        started).
     """
     if _early["helper"] is not None or (os.cpu_count() or 1) < 2 or not nothing_cached():
         return []
-    _, remote = split_families(names, EARLY_HELPER_START_SECONDS)
-    if not remote:
+    if len(names) < 2:
         return []
-    helper = start_helper(remote)
-    _early.update(helper=helper, names=tuple(remote))
-    atexit.register(_stop_untaken, helper)
-    return list(remote)
+    claims = FamilyClaims()
+    ordered = compile_order(names)
+    helper = start_helper(ordered, claims)
+    _early.update(helper=helper, names=tuple(ordered), claims=claims)
+    atexit.register(_stop_untaken, helper, claims)
+    return ordered
 
 
 def take_early(names):
-    """``(helper, families)`` of the helper :func:`start_early` started, for a warm-up of ``names``.
+    """``(helper, families, claims)`` of the helper :func:`start_early` started, for a
+    warm-up of ``names``.
 
-    Taken once, and only if it compiles some of ``names`` (``families``:
+    Taken once, and only if it may compile some of ``names`` (``families``:
     those); otherwise ``None``, and a helper nobody takes is stopped at exit.
+    The taker claims the helper's families it does not need, so that the
+    helper skips them.
     """
-    helper = _early["helper"]
-    remote = [name for name in _early["names"] if name in names]
-    if helper is None or not remote:
+    helper, claims = _early["helper"], _early["claims"]
+    shared = [name for name in _early["names"] if name in names]
+    if helper is None or not shared:
         return None
-    _early.update(helper=None, names=())
-    return helper, remote
+    for name in _early["names"]:
+        if name not in names:
+            claims.claim(name)
+    _early.update(helper=None, names=(), claims=None)
+    return helper, shared, claims
 
 
-def _stop_untaken(helper):
+def _stop_untaken(helper, claims):
     if helper.poll() is None and _early["helper"] is helper:
         helper.terminate()
         helper.wait()
+    if _early["claims"] is claims:
+        claims.remove()

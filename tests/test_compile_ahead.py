@@ -1,12 +1,12 @@
-"""The kernel compile's plan: the split over two processes, the "nothing cached" check, the
-helper the fastdet command starts before its imports."""
+"""The kernel compile's plan: the order two processes share the families in, their claims,
+the "nothing cached" check, the helper the fastdet command starts before its imports."""
 
 import hashlib
-import itertools
 import json
 import os
 import subprocess
 import sys
+import threading
 
 import pytest
 
@@ -14,51 +14,48 @@ from fastdet import compile_ahead
 from fastdet.compile_ahead import (
     COMPILE_WEIGHTS,
     DETECTION_FAMILIES,
-    SHARED_SECONDS,
-    group_seconds,
+    FamilyClaims,
+    compile_order,
     nothing_cached,
-    split_families,
 )
 
-#: The helper's families for a detection on a cold cache, as start_early splits them.
-EARLY_HELPER = split_families(DETECTION_FAMILIES, compile_ahead.EARLY_HELPER_START_SECONDS)[1]
+
+def test_compile_order_is_heaviest_first():
+    order = compile_order(DETECTION_FAMILIES)
+    assert sorted(order) == sorted(DETECTION_FAMILIES)
+    weights = [COMPILE_WEIGHTS[name] for name in order]
+    assert weights == sorted(weights, reverse=True) and weights[0] > weights[-1]
+    # Unmeasured families weigh 1 s; equal weights go by name, so both
+    # processes walk the same list.
+    assert compile_order(["zz", "label", "aa", "convert"]) == ["label", "aa", "zz", "convert"]
+    assert compile_order([]) == []
 
 
-def _end(here, helper, start):
-    return max(group_seconds(here), start + group_seconds(helper))
+def test_each_family_is_claimed_once(tmp_path):
+    mine = FamilyClaims()
+    theirs = FamilyClaims(mine.folder)     # the helper's side of the same claims
+    names = [f"family{k}" for k in range(50)]
+    won = {id(mine): [], id(theirs): []}
+    lock = threading.Lock()
 
+    def take(claims):
+        for name in names:
+            if claims.claim(name):
+                with lock:
+                    won[id(claims)].append(name)
 
-def test_group_seconds_counts_the_shared_part_once():
-    assert group_seconds([]) == 0
-    assert group_seconds(["label"]) == COMPILE_WEIGHTS["label"]
-    assert group_seconds(["label", "hog"]) == pytest.approx(
-        COMPILE_WEIGHTS["label"] + COMPILE_WEIGHTS["hog"] - SHARED_SECONDS)
-    assert group_seconds(["never-measured"]) == 1.0
-
-
-@pytest.mark.parametrize("names", [DETECTION_FAMILIES, tuple(COMPILE_WEIGHTS),
-                                   ("label", "heat"), ("convert",), ()])
-@pytest.mark.parametrize("start", [0.0, 0.8, 3.0])
-def test_the_split_ends_soonest(names, start):
-    here, helper = split_families(names, start)
-    assert sorted(here + helper) == sorted(names)
-    best = _end(here, helper, start)
-    # Checked against every split, enumerated here in another way.
-    for size in range(len(names) + 1):
-        for other in itertools.combinations(names, size):
-            rest = [name for name in names if name not in other]
-            assert best <= _end(rest, list(other), start) + 1e-9
-
-
-def test_a_helper_that_starts_later_gets_less():
-    early = split_families(DETECTION_FAMILIES, 0.0)[1]
-    late = split_families(DETECTION_FAMILIES, compile_ahead.HELPER_START_SECONDS)[1]
-    assert group_seconds(late) < group_seconds(early)
-    # Both leave the two processes less than the lightest family apart.
-    for start, (here, helper) in ((0.0, split_families(DETECTION_FAMILIES, 0.0)),
-                                  (0.8, split_families(DETECTION_FAMILIES, 0.8))):
-        gap = abs(group_seconds(here) - start - group_seconds(helper))
-        assert gap < min(COMPILE_WEIGHTS[name] for name in DETECTION_FAMILIES)
+    threads = [threading.Thread(target=take, args=(claims,)) for claims in (mine, theirs) * 4]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert sorted(won[id(mine)] + won[id(theirs)]) == sorted(names)
+    assert not mine.claim("family0") and not theirs.claim("family0")
+    theirs.remove()                        # not its folder: kept
+    assert os.path.isdir(mine.folder)
+    mine.remove()
+    assert not os.path.exists(mine.folder)
+    assert not theirs.claim("new")         # claims gone: the helper takes nothing more
 
 
 def test_nothing_cached_with_a_numba_cache_dir(tmp_path, monkeypatch):
@@ -127,14 +124,16 @@ started = compile_ahead.start_early()
 again = compile_ahead.start_early()          # one helper per process
 unrelated = compile_ahead.take_early(["no-such-family"])
 taken = None
+claims = compile_ahead._early["claims"].folder
 if sys.argv[1] == "take":
-    helper, names = compile_ahead.take_early(list(compile_ahead.DETECTION_FAMILIES))
+    helper, names, taken_claims = compile_ahead.take_early(["resize", "heat"])
     out, _ = helper.communicate(timeout=900)
+    taken_claims.remove()
     taken = {"names": names, "code": helper.returncode,
              "report": json.loads(out.decode().strip().splitlines()[-1])}
     assert compile_ahead.take_early(list(compile_ahead.DETECTION_FAMILIES)) is None
 print(json.dumps({"started": started, "again": again, "unrelated": unrelated,
-                  "taken": taken, "pid": compile_ahead._early["helper"].pid
+                  "taken": taken, "claims": claims, "pid": compile_ahead._early["helper"].pid
                   if compile_ahead._early["helper"] else None}))
 """
 
@@ -149,20 +148,24 @@ def _run_early(tmp_path, mode, timeout):
 
 
 @pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="the helper starts on 2+ cores only")
-def test_the_early_helper_compiles_its_share_once(tmp_path):
+def test_the_early_helper_compiles_what_the_taker_leaves(tmp_path):
+    # The taker needs two of the families and compiles none itself here: the
+    # helper compiles both, skipping the rest, which the taker claimed.
     result = _run_early(tmp_path, "take", 900)
-    assert result["started"] == EARLY_HELPER and result["again"] == []
+    assert result["started"] == compile_order(DETECTION_FAMILIES) and result["again"] == []
     assert result["unrelated"] is None
-    assert result["taken"]["names"] == EARLY_HELPER and result["taken"]["code"] == 0
-    assert sorted(result["taken"]["report"]) == sorted(EARLY_HELPER)
+    assert result["taken"]["names"] == ["heat", "resize"] and result["taken"]["code"] == 0
+    assert sorted(result["taken"]["report"]) == ["heat", "resize"]
+    assert not os.path.exists(result["claims"])
 
 
 @pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="the helper starts on 2+ cores only")
 def test_a_helper_nobody_took_is_stopped_at_exit(tmp_path):
-    pid = _run_early(tmp_path, "leave", 120)["pid"]
-    assert pid is not None
+    result = _run_early(tmp_path, "leave", 120)
+    assert result["pid"] is not None
     with pytest.raises(ProcessLookupError):
-        os.kill(pid, 0)
+        os.kill(result["pid"], 0)
+    assert not os.path.exists(result["claims"])
 
 
 @pytest.mark.parametrize("argv, starts", [
@@ -193,8 +196,8 @@ def test_a_cold_fastdet_detect_compiles_with_the_early_helper(tmp_path, data_dir
                str(data_dir / "test_images" / "test1.jpg")]
     first = subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
     assert first.returncode == 0, first.stderr[-3000:]
-    assert (f"compiling kernels in two processes: {', '.join(EARLY_HELPER)} in a second one, "
-            "started before fastdet's imports") in first.stderr
+    assert ("compiling kernels in two processes, each taking the next family as it finishes "
+            "one (the second started before fastdet's imports)") in first.stderr
     second = subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
     assert second.returncode == 0, second.stderr[-3000:]
     assert "compiling kernels" not in second.stderr and ", 0 compiled" in second.stderr

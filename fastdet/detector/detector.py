@@ -117,8 +117,8 @@ class Detector:
         count so the two do not oversubscribe the cores.
     preload : bool
         Load the kernels a detection needs in a background thread from
-        now on (compiling them on first use, about half of them in a
-        second process; see :func:`fastdet.kernels.warmup.warm`); the first
+        now on (compiling them on first use, shared with a second process;
+        see :func:`fastdet.kernels.warmup.warm`); the first
         detection waits for it.  False: each kernel loads at its first call.
 
     Attributes

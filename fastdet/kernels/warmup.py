@@ -6,15 +6,17 @@ calls them (the same dtypes, dimensions, layouts and argument kinds) on
 inputs a few pixels wide, so that afterwards a detection finds every kernel
 it needs compiled (a test holds the detector to that).  With a filled cache
 that is a load from disk; with an empty one it is the compile, which
-:func:`warm` can spread over a second process (:func:`cold_families`).
+:func:`warm` can share with a second process (:func:`cold_families`).
 
 Used by ``fastdet warmup`` (compile everything once, e.g. while building a
 Docker image or starting a cluster worker) and by
 :class:`fastdet.detector.detector.Detector`, which loads its families in a
 background thread as soon as it is created.
 
-``python -m fastdet.kernels.warmup FAMILY...`` compiles the named families
-and prints one JSON line of seconds per family.
+``python -m fastdet.kernels.warmup [--claims FOLDER] FAMILY...`` compiles
+the named families (with ``--claims``, those it claims first; see
+:class:`fastdet.compile_ahead.FamilyClaims`) and prints one JSON line of
+seconds per family it compiled or loaded.
 """
 
 from __future__ import annotations
@@ -27,7 +29,8 @@ import time
 
 import numpy as np
 
-from ..compile_ahead import DETECTION_FAMILIES, split_families, start_helper, take_early
+from ..compile_ahead import (DETECTION_FAMILIES, FamilyClaims, compile_order, start_helper,
+                             take_early)
 
 log = logging.getLogger("fastdet.kernels")
 
@@ -221,7 +224,7 @@ def cold_families(names):
     return cold
 
 
-def warm(names=DETECTION_FAMILIES, processes=None):
+def warm(names=DETECTION_FAMILIES, processes=None, claims=None):
     """Compile or load the kernel families ``names``; returns seconds per family.
 
     Parameters
@@ -230,12 +233,16 @@ def warm(names=DETECTION_FAMILIES, processes=None):
         Keys of :data:`FAMILIES`.
     processes : int, optional
         With 2 or more and families still uncompiled (:func:`cold_families`),
-        about half of those are compiled by a second Python process while
-        this one compiles the rest, then loaded here from the cache.  The
-        ``fastdet`` command may have started that process already, before
-        its imports (:func:`fastdet.compile_ahead.start_early`); then its
-        families are the second process's share.  ``None``: 2 when there
+        a second Python process shares the compile: both take the families
+        heaviest first (:func:`fastdet.compile_ahead.compile_order`), each
+        compiling the next one the other has not claimed, and this one then
+        loads the helper's from the cache.  The ``fastdet`` command may have
+        started that process already, before its imports
+        (:func:`fastdet.compile_ahead.start_early`).  ``None``: 2 when there
         are two or more CPU cores.
+    claims : FamilyClaims, optional
+        The helper's side: only the families claimed here first are
+        compiled, the others skipped (``processes`` is then ignored).
 
     Returns
     -------
@@ -247,32 +254,52 @@ def warm(names=DETECTION_FAMILIES, processes=None):
     unknown = [name for name in names if name not in FAMILIES]
     if unknown:
         raise ValueError(f"unknown kernel families {unknown}; known: {sorted(FAMILIES)}")
+    if claims is not None:
+        return {name: _run(name) for name in compile_order(names) if claims.claim(name)}
     if processes is None:
         processes = 2 if (os.cpu_count() or 1) > 1 else 1
-    helper, remote = None, []
+    helper, shared = None, []
     early = take_early(names) if processes > 1 else None
     if early is not None:
-        helper, remote = early
-        log.info("compiling kernels in two processes: %s in a second one, started before "
-                 "fastdet's imports", ", ".join(remote))
+        helper, shared, claims = early
+        log.info("compiling kernels in two processes, each taking the next family as it "
+                 "finishes one (the second started before fastdet's imports)")
     elif processes > 1:
-        cold = cold_families(names)
-        if len(cold) > 1:
-            _, remote = split_families(cold)
-            helper = start_helper(remote)
-            log.info("compiling kernels in two processes: %s in a second one", ", ".join(remote))
-    seconds = {}
-    for name in sorted(names, key=lambda n: n in remote):
-        if name in remote and helper is not None:
+        shared = compile_order(cold_families(names))
+        if len(shared) > 1:
+            claims = FamilyClaims()
+            helper = start_helper(shared, claims)
+            log.info("compiling kernels in two processes, each taking the next family as it "
+                     "finishes one")
+        else:
+            shared = []
+    seconds, helpers = {}, []
+    try:
+        for name in compile_order(names):
+            if name in shared and not claims.claim(name):
+                helpers.append(name)
+                continue
+            seconds[name] = _run(name)
+        helper_seconds = {}
+        if helper is not None:
             output, _ = helper.communicate()
             helper_seconds = _parse_report(output) if helper.returncode == 0 else {}
-            helper = None
-        start = time.perf_counter()
-        FAMILIES[name]()
-        seconds[name] = time.perf_counter() - start
-    if remote:
-        seconds["helper"] = helper_seconds
+    finally:
+        if claims is not None:
+            claims.remove()
+    # The helper's families, from the cache (compiled here if the helper failed).
+    for name in helpers:
+        seconds[name] = _run(name)
+    if shared:
+        seconds["helper"] = {name: helper_seconds[name] for name in helpers
+                             if name in helper_seconds}
     return seconds
+
+
+def _run(name):
+    start = time.perf_counter()
+    FAMILIES[name]()
+    return time.perf_counter() - start
 
 
 def _parse_report(output):
@@ -283,9 +310,14 @@ def _parse_report(output):
 
 
 def main(argv=None):
-    """``python -m fastdet.kernels.warmup FAMILY...``: compile, print seconds as JSON."""
-    names = (sys.argv[1:] if argv is None else argv) or list(FAMILIES)
-    print(json.dumps(warm(names, processes=1)))
+    """``python -m fastdet.kernels.warmup [--claims FOLDER] FAMILY...``: compile, print
+    seconds as JSON."""
+    names = list(sys.argv[1:] if argv is None else argv)
+    claims = None
+    if names[:1] == ["--claims"]:
+        claims = FamilyClaims(names[1])
+        names = names[2:]
+    print(json.dumps(warm(names or list(FAMILIES), processes=1, claims=claims)))
     return 0
 
 

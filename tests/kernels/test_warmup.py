@@ -57,19 +57,85 @@ def test_unknown_family_is_refused():
 
 
 def test_cold_families_compiled_by_two_processes(tmp_path):
-    """With an empty cache, ``fastdet warmup`` compiles half the families in a helper
-    process; a second run finds them all in the cache."""
+    """With an empty cache, ``fastdet warmup`` shares the families with a helper
+    process, each compiled once; a second run finds them all in the cache."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     command = [sys.executable, "-c", "import sys; from fastdet.cli import console_main; "
                "console_main(sys.argv[1:])", "warmup", "--families", "resize", "heat",
                "--processes", "2"]
     first = subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
     assert first.returncode == 0, first.stderr[-3000:]
-    assert "compiled (helper process)" in first.stdout
-    assert "| resize | compiled" in first.stdout and "| heat | compiled" in first.stdout
+    for name in ("resize", "heat"):
+        rows = [line for line in first.stdout.splitlines() if line.startswith(f"| {name} |")]
+        assert len(rows) == 1 and rows[0].split("|")[2].strip() in (
+            "compiled", "compiled (helper process)"), first.stdout
     second = subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
     assert second.returncode == 0, second.stderr[-3000:]
     assert second.stdout.count("loaded from the cache") == 2, second.stdout
+
+
+class _FakeHelper:
+    """A helper process that claimed ``taken`` before this one asked, and reports them."""
+
+    def __init__(self, taken):
+        self.taken, self.returncode = taken, 0
+
+    def communicate(self):
+        return json.dumps({name: 1.5 for name in self.taken}).encode(), b""
+
+
+def test_two_processes_take_turns_in_the_heaviest_first_order(monkeypatch):
+    calls = []
+    monkeypatch.setattr(warmup, "FAMILIES", {name: (lambda name=name: calls.append(name))
+                                             for name in ("label", "score", "heat", "convert")})
+    monkeypatch.setattr(warmup, "cold_families", lambda names: list(names))
+    monkeypatch.setattr(warmup, "take_early", lambda names: None)
+    started = {}
+
+    def start_helper(names, claims):
+        started.update(names=list(names), folder=claims.folder)
+        # The helper got to the heaviest and to heat first.
+        assert claims.claim("label") and claims.claim("heat")
+        return _FakeHelper(["label", "heat"])
+
+    monkeypatch.setattr(warmup, "start_helper", start_helper)
+    seconds = warmup.warm(["convert", "heat", "label", "score"], processes=2)
+    assert started["names"] == ["label", "score", "heat", "convert"]
+    # This process compiled what the helper had not claimed, in the same order,
+    # then loaded the helper's families (from the cache) once it had finished.
+    assert calls == ["score", "convert", "label", "heat"]
+    assert seconds["helper"] == {"label": 1.5, "heat": 1.5}
+    assert sorted(name for name in seconds if name != "helper") == sorted(calls)
+    assert not os.path.exists(started["folder"])
+
+
+def test_the_helper_compiles_only_what_it_claims(tmp_path):
+    claims = warmup.FamilyClaims()
+    try:
+        assert claims.claim("heat")  # this process's
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+        done = subprocess.run([sys.executable, "-m", "fastdet.kernels.warmup", "--claims",
+                               claims.folder, "heat", "convert"],
+                              capture_output=True, text=True, env=env, timeout=900)
+    finally:
+        claims.remove()
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert sorted(json.loads(done.stdout.strip().splitlines()[-1])) == ["convert"]
+
+
+_HELPER_FROM_A_SHADOWED_FOLDER = r"""
+import json, sys
+sys.path = [p for p in sys.path if p not in ("", ".")]
+from fastdet.compile_ahead import FamilyClaims, start_helper
+claims = FamilyClaims()
+helper = start_helper(["resize"], claims)
+out, _ = helper.communicate(timeout=900)
+claims.remove()
+from fastdet.kernels.warmup import compiled_here, warm
+warm(["resize"], processes=1)
+print(json.dumps({"code": helper.returncode, "report": json.loads(out.decode().splitlines()[-1]),
+                  "compiled_here": compiled_here("resize")}))
+"""
 
 
 def test_the_helper_process_compiles_this_fastdet_not_the_working_directorys(tmp_path):
@@ -81,13 +147,13 @@ def test_the_helper_process_compiles_this_fastdet_not_the_working_directorys(tmp
     (shadow / "__init__.py").write_text("raise ImportError('the working directory's fastdet')\n")
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     # This process imports the installed fastdet, as the console script does.
-    command = [sys.executable, "-c", "import sys; sys.path = [p for p in sys.path if p not in "
-               "('', '.')]; from fastdet.cli import console_main; console_main(sys.argv[1:])",
-               "warmup", "--families", "resize", "heat", "--processes", "2"]
-    completed = subprocess.run(command, capture_output=True, text=True, env=env, cwd=tmp_path,
+    completed = subprocess.run([sys.executable, "-c", _HELPER_FROM_A_SHADOWED_FOLDER],
+                               capture_output=True, text=True, env=env, cwd=tmp_path,
                                timeout=900)
     assert completed.returncode == 0, completed.stderr[-3000:]
-    assert "| resize | compiled (helper process) |" in completed.stdout, completed.stdout
+    result = json.loads(completed.stdout.strip().splitlines()[-1])
+    assert result["code"] == 0 and list(result["report"]) == ["resize"], result
+    assert result["compiled_here"] is False   # loaded from what the helper compiled
 
 
 def test_warmup_command_reports_every_family(capsys):
