@@ -203,7 +203,10 @@ def start_early(names=DETECTION_FAMILIES):
         return []
     if len(names) < 2:
         return []
-    claims = FamilyClaims()
+    try:
+        claims = FamilyClaims()
+    except OSError:  # no temporary folder to be had: this process compiles alone
+        return []
     ordered = compile_order(names)
     helper = start_helper(ordered, claims)
     _early.update(helper=helper, names=tuple(ordered), claims=claims)

@@ -202,3 +202,17 @@ def test_a_cold_fastdet_detect_compiles_with_the_early_helper(tmp_path, data_dir
     assert second.returncode == 0, second.stderr[-3000:]
     assert "compiling kernels" not in second.stderr and ", 0 compiled" in second.stderr
     assert json.loads(first.stdout)["boxes"] == json.loads(second.stdout)["boxes"]
+
+
+def test_no_early_helper_without_a_folder_for_its_claims(monkeypatch):
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(compile_ahead, "nothing_cached", lambda: True)
+
+    def no_folder():
+        raise OSError("read-only /tmp")
+
+    monkeypatch.setattr(compile_ahead, "FamilyClaims", no_folder)
+    started = []
+    monkeypatch.setattr(compile_ahead, "start_helper", lambda *args: started.append(args))
+    assert compile_ahead.start_early() == [] and started == []
+    assert compile_ahead.take_early(DETECTION_FAMILIES) is None

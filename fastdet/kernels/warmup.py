@@ -266,13 +266,21 @@ def warm(names=DETECTION_FAMILIES, processes=None, claims=None):
                  "finishes one (the second started before fastdet's imports)")
     elif processes > 1:
         shared = compile_order(cold_families(names))
-        if len(shared) > 1:
-            claims = FamilyClaims()
-            helper = start_helper(shared, claims)
+        try:
+            claims = FamilyClaims() if len(shared) > 1 else None
+        except OSError:  # no temporary folder to be had: this process compiles alone
+            claims = None
+        if claims is not None:
+            try:
+                helper = start_helper(shared, claims)
+            except OSError:  # no second process to be had: likewise
+                claims.remove()
+                claims = None
+        if claims is None:
+            shared = []
+        else:
             log.info("compiling kernels in two processes, each taking the next family as it "
                      "finishes one")
-        else:
-            shared = []
     seconds, helpers = {}, []
     try:
         for name in compile_order(names):

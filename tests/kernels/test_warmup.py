@@ -227,3 +227,26 @@ def test_the_tails_family_compiles_the_per_pixel_tails():
                                timeout=900)
     assert completed.returncode == 0, completed.stderr[-3000:]
     assert completed.stdout.split() == ["1", "1"], completed.stdout
+
+
+def test_without_a_second_process_this_one_compiles_everything(monkeypatch):
+    calls = []
+    monkeypatch.setattr(warmup, "FAMILIES", {name: (lambda name=name: calls.append(name))
+                                             for name in ("label", "heat")})
+    monkeypatch.setattr(warmup, "cold_families", lambda names: list(names))
+    monkeypatch.setattr(warmup, "take_early", lambda names: None)
+
+    def no_process(names, claims):
+        raise OSError("no processes left")
+
+    monkeypatch.setattr(warmup, "start_helper", no_process)
+    seconds = warmup.warm(["heat", "label"], processes=2)
+    assert calls == ["label", "heat"] and "helper" not in seconds
+
+    def no_folder():
+        raise OSError("read-only /tmp")
+
+    calls.clear()
+    monkeypatch.setattr(warmup, "FamilyClaims", no_folder)
+    seconds = warmup.warm(["heat", "label"], processes=2)
+    assert calls == ["label", "heat"] and "helper" not in seconds
