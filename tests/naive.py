@@ -4,7 +4,10 @@ Each function here is the most obvious, slow implementation of what a
 kernel in ``fastdet.kernels`` computes, written independently of the
 kernel's algorithm so that agreement between the two is meaningful.  Keep
 them short, loop-based where that is clearest, and free of Numba and of
-imports from ``fastdet``.
+imports from ``fastdet``.  The HLS conversion's reference is OpenCV itself
+(:func:`opencv_hls`), whose output depends on the CPU; the function reads
+each pixel's two possible values off OpenCV and places them as its AVX2
+code does.
 """
 
 from __future__ import annotations
