@@ -208,7 +208,11 @@ def start_early(names=DETECTION_FAMILIES):
     except OSError:  # no temporary folder to be had: this process compiles alone
         return []
     ordered = compile_order(names)
-    helper = start_helper(ordered, claims)
+    try:
+        helper = start_helper(ordered, claims)
+    except OSError:  # no second process to be had: likewise
+        claims.remove()
+        return []
     _early.update(helper=helper, names=tuple(ordered), claims=claims)
     atexit.register(_stop_untaken, helper, claims)
     return ordered

@@ -216,3 +216,18 @@ def test_no_early_helper_without_a_folder_for_its_claims(monkeypatch):
     monkeypatch.setattr(compile_ahead, "start_helper", lambda *args: started.append(args))
     assert compile_ahead.start_early() == [] and started == []
     assert compile_ahead.take_early(DETECTION_FAMILIES) is None
+
+
+def test_no_early_helper_without_a_second_process(monkeypatch):
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(compile_ahead, "nothing_cached", lambda: True)
+    folders = []
+
+    def no_process(names, claims):
+        folders.append(claims.folder)
+        raise OSError("no processes left")
+
+    monkeypatch.setattr(compile_ahead, "start_helper", no_process)
+    assert compile_ahead.start_early() == []
+    assert len(folders) == 1 and not os.path.exists(folders[0])
+    assert compile_ahead.take_early(DETECTION_FAMILIES) is None
