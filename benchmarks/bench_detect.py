@@ -9,7 +9,8 @@
   same frames: fastdet with one thread against the reference, and against
   OpenCV's ``HOGDescriptor`` (in its own environment, see
   ``benchmarks/opencv_peer/``) on exactly fastdet's windows and in its
-  native multi-scale search, fastdet and OpenCV in turn on each frame.
+  native multi-scale search, fastdet and OpenCV in turns of a few frames
+  (``fastdet.bench.timing.TURN_FRAMES``).
 
 The model is ``$FASTDET_BENCH_MODEL`` or the bundled default.
 """
@@ -138,7 +139,8 @@ class OpenCVPeer:
         with peers.OpenCVPeer(frames, plans, threads=(1,), repeat=3,
                               peer_script=PEER_SCRIPT) as peer:
             fastdet, = timing.time_fastdet_in_turn([("fastdet", detector)], frames, repeat=3,
-                                                   also=peer.time_frame)
+                                                   also=peer.time_turn,
+                                                   turn_frames=timing.TURN_FRAMES)
             results = peer.results()
         by_mode = {("same" if "same windows" in r.name else "native"): r for r in results}
         return {"fastdet": fastdet.median_ms / 1e3, "same": by_mode["same"].median_ms / 1e3,

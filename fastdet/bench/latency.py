@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from ..detector.detector import Detector
 from ..errors import InputError
 from .peers import OpenCVPeer, load_reference_module
-from .timing import (STAGE_LABELS, fastdet_name, speedup, spread_indices, time_callable,
-                     time_fastdet_in_turn)
+from .timing import (STAGE_LABELS, TURN_FRAMES, fastdet_name, speedup, spread_indices,
+                     time_callable, time_fastdet_in_turn)
 
 
 # -- the comparison -----------------------------------------------------------
@@ -43,7 +43,7 @@ class BenchmarkRun:
 
 
 def run_benchmark(frames, threads=(1,), repeat=3, reference_frames=5, opencv=True,
-                  model=None, config=None, log=print):
+                  model=None, config=None, log=print, turn_frames=TURN_FRAMES):
     """Time fastdet (per thread count) and its peers on the same frames.
 
     Parameters
@@ -64,6 +64,9 @@ def run_benchmark(frames, threads=(1,), repeat=3, reference_frames=5, opencv=Tru
         built-in config).
     log : callable
         Receives progress and skip notes.
+    turn_frames : int
+        Consecutive frames each pipeline is timed on per turn (see
+        :func:`~fastdet.bench.timing.time_fastdet_in_turn`).
 
     Returns
     -------
@@ -73,7 +76,7 @@ def run_benchmark(frames, threads=(1,), repeat=3, reference_frames=5, opencv=Tru
     notes = []
     threads = sorted(set(threads))
 
-    # fastdet's thread counts and OpenCV in turn on every frame (a slow spell
+    # fastdet's thread counts and OpenCV in turns of a few frames (a slow spell
     # of the machine hits them alike), then the slow reference.
     detectors = [Detector(model=model, config=config, threads=count) for count in threads]
     names = [fastdet_name(detector.threads) for detector in detectors]
@@ -82,10 +85,10 @@ def run_benchmark(frames, threads=(1,), repeat=3, reference_frames=5, opencv=Tru
     opencv_peer = (_OpenCVInTurn(frames, plans, threads, repeat, model_obj, notes, log)
                    if opencv else None)
     timed = names + (["OpenCV's HOGDescriptor"] if opencv_peer and opencv_peer.peer else [])
-    log(f"timing {', '.join(timed)} on {len(frames)} frames, in turn on each frame ...")
+    log(f"timing {', '.join(timed)} on {len(frames)} frames, in turns of {turn_frames} frames ...")
     try:
         fastdet_results = time_fastdet_in_turn(list(zip(names, detectors)), frames, repeat,
-                                               also=opencv_peer)
+                                               also=opencv_peer, turn_frames=turn_frames)
     finally:
         opencv_results, opencv_report = (opencv_peer.finish() if opencv_peer is not None
                                           else ([], None))
@@ -110,7 +113,7 @@ def run_benchmark(frames, threads=(1,), repeat=3, reference_frames=5, opencv=Tru
 
 
 class _OpenCVInTurn:
-    """The OpenCV peer's turn on each frame; a peer that fails leaves a note, not a failure."""
+    """The OpenCV peer's turn on each turn's frames; a peer that fails leaves a note, not a failure."""
 
     def __init__(self, frames, plans, threads, repeat, model, notes, log):
         self.notes, self.peer = notes, None
@@ -120,9 +123,9 @@ class _OpenCVInTurn:
         log("starting the OpenCV HOGDescriptor peer (its own environment) ...")
         self._guarded(self._start, frames, plans, threads, repeat)
 
-    def __call__(self, index):
+    def __call__(self, indices):
         if self.peer is not None:
-            self._guarded(self.peer.time_frame, index)
+            self._guarded(self.peer.time_turn, indices)
 
     def finish(self):
         """The peer's results and report (none after a failure); ends the peer."""

@@ -120,8 +120,9 @@ class OpenCVPeer:
 
     The peer (``benchmarks/opencv_peer/peer.py``) runs as a subprocess that
     times the frame it is asked for, so a caller can time fastdet and OpenCV
-    on each frame in turn (:func:`fastdet.bench.timing.time_fastdet_in_turn`)
-    and a slow spell of a shared machine hits both alike.  Use it as a
+    in turns over the same frames
+    (:func:`fastdet.bench.timing.time_fastdet_in_turn`) and a slow spell of
+    a shared machine hits both alike.  Use it as a
     context manager; the peer process and its files go when it closes.
 
     Parameters
@@ -148,7 +149,7 @@ class OpenCVPeer:
     ------
     InputError
         When the peer environment is missing, the peer fails or does not
-        answer in time (from :meth:`start` and :meth:`time_frame`).
+        answer in time (from :meth:`start`, :meth:`time_turn` and :meth:`time_frame`).
     """
 
     def __init__(self, frames, plans, threads=(1,), repeat=3, data=None, start_timeout=1800,
@@ -202,22 +203,38 @@ class OpenCVPeer:
         self._reader.start()
         self.report = self._reply(self.start_timeout)
 
+    def time_turn(self, indices):
+        """One untimed call on the first of ``indices``, then :meth:`time_frame` of each.
+
+        The peer's turn in :func:`~fastdet.bench.timing.time_fastdet_in_turn`,
+        warmed up as fastdet's detectors are.
+        """
+        if indices:
+            self._ask(indices[0], repeat=1)
+        for index in indices:
+            self.time_frame(index)
+
     def time_frame(self, index):
         """Time frame ``index`` (of ``frames``) with every thread count."""
+        replies = self._ask(index, self.repeat)
+        # Recorded once the frame is complete: a failure leaves no partial frame.
+        for threads, reply in replies:
+            for mode, seconds in reply["seconds"].items():
+                self._seconds.setdefault((mode, threads), []).append(seconds)
+        self._indices.append(int(index))
+
+    def _ask(self, index, repeat):
+        """The peer's replies for frame ``index``, one per thread count."""
         replies = []
         for threads in self.threads:
-            request = {"frame": int(index), "threads": threads, "repeat": self.repeat}
+            request = {"frame": int(index), "threads": threads, "repeat": int(repeat)}
             try:
                 self._process.stdin.write(json.dumps(request) + "\n")
                 self._process.stdin.flush()
             except OSError:  # the peer has gone: its reply says why
                 pass
             replies.append((threads, self._reply(self.frame_timeout)))
-        # Recorded once the frame is complete: a failure leaves no partial frame.
-        for threads, reply in replies:
-            for mode, seconds in reply["seconds"].items():
-                self._seconds.setdefault((mode, threads), []).append(seconds)
-        self._indices.append(int(index))
+        return replies
 
     def results(self):
         """One :class:`PipelineResult` per thread count and mode, on the frames timed."""

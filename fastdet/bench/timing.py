@@ -24,6 +24,10 @@ STAGE_LABELS = {"resize_convert": "resize+convert", "cells": "cells",
                 "blocks_score": "blocks+scores", "colour_maps": "colour maps",
                 "heat": "heat", "label": "labelling"}
 
+#: Consecutive frames per pipeline's turn in ``fastdet bench`` (see
+#: :func:`time_fastdet_in_turn`).
+TURN_FRAMES = 8
+
 
 @dataclass
 class PipelineResult:
@@ -135,19 +139,28 @@ def time_fastdet(detector, frames, repeat=3, name="fastdet"):
     idle cores (it assumes the threads, which take tasks as they finish
     them, would split the work evenly).
     """
-    return time_fastdet_in_turn([(name, detector)], frames, repeat)[0]
+    # One pipeline alone needs no turns: its frames back to back, as a video.
+    return time_fastdet_in_turn([(name, detector)], frames, repeat,
+                                turn_frames=max(len(frames), 1))[0]
 
 
-def time_fastdet_in_turn(named_detectors, frames, repeat=3, also=None):
-    """:func:`time_fastdet` of several detectors, frame by frame in turn.
+def time_fastdet_in_turn(named_detectors, frames, repeat=3, also=None,
+                         turn_frames=TURN_FRAMES):
+    """:func:`time_fastdet` of several detectors, in turns over the same frames.
 
-    Each frame gets the first detector's ``repeat`` calls, then the next
-    detector's, and so on, each detector with its own thread counts set
-    (Numba's and OpenCV's, which :class:`~fastdet.detector.detector.Detector`
-    sets process-wide when it is made), then ``also``.  A slow spell of a
-    shared machine then hits all of them alike: timed one after the other, a
-    minute apart, two threads came out 0.86x, 2.2x and 1.6x one thread in
-    three runs of ``fastdet bench`` on one machine (AMD EPYC Zen 4, 2 vCPUs).
+    Each turn covers ``turn_frames`` consecutive frames: the first detector
+    makes one untimed call on the turn's first frame, then its ``repeat``
+    timed calls on each of the turn's frames, then the next detector does the
+    same, each with its own thread counts set (Numba's and OpenCV's, which
+    :class:`~fastdet.detector.detector.Detector` sets process-wide when it is
+    made), then ``also`` gets the turn's frame indices.  A slow spell of a shared machine
+    then hits all of them alike: timed one after the other, a minute apart,
+    two threads came out 0.86x, 2.2x and 1.6x one thread in three runs of
+    ``fastdet bench`` on one machine (AMD EPYC Zen 4, 2 vCPUs).  Turns of
+    several frames time each pipeline as a video runs it, frames back to
+    back: on a 2-core Xeon VM a one-thread frame took 0.2-0.45 ms longer in
+    each of the first three calls after the process had waited or spun for
+    6 ms, so turns of one frame charge that wake-up to every frame.
 
     Parameters
     ----------
@@ -155,23 +168,32 @@ def time_fastdet_in_turn(named_detectors, frames, repeat=3, also=None):
     frames : list of ndarray
     repeat : int
     also : callable, optional
-        Called with each frame's index after the detectors' calls on it
-        (e.g. :meth:`~fastdet.bench.peers.OpenCVPeer.time_frame`).
+        Called with the list of each turn's frame indices after the
+        detectors' calls on them (e.g.
+        :meth:`~fastdet.bench.peers.OpenCVPeer.time_turn`).
+    turn_frames : int
+        Consecutive frames per turn (1: every frame a turn of its own).
 
     Returns
     -------
     list of PipelineResult
         In the order of ``named_detectors``.
     """
+    if turn_frames < 1:
+        raise ValueError(f"turn_frames must be at least 1, got {turn_frames}")
     timers = [_DetectorTimes(name, detector) for name, detector in named_detectors]
     for timer in timers:
         timer.use_threads()
         timer.detector(frames[0])
-    for index, frame in enumerate(frames):
+    for first in range(0, len(frames), turn_frames):
+        turn = range(first, min(first + turn_frames, len(frames)))
         for timer in timers:
-            timer.time_frame(frame, repeat)
+            timer.use_threads()
+            timer.detector(frames[first])
+            for index in turn:
+                timer.time_frame(frames[index], repeat)
         if also is not None:
-            also(index)
+            also(list(turn))
     return [timer.result() for timer in timers]
 
 

@@ -36,6 +36,12 @@ def add_bench_parser(subparsers):
     bench.add_argument("--size", metavar="WxH", help="resize frames first, e.g. 1920x1080")
     bench.add_argument("--repeat", type=int, default=3,
                        help="timed calls per frame; the median is kept (default 3)")
+    # The default lives in fastdet.bench.timing, which imports OpenCV and
+    # Numba: too heavy for building the parser of every command.
+    bench.add_argument("--turn-frames", type=int, metavar="K",
+                       help="consecutive frames each pipeline (fastdet per thread count, "
+                            "OpenCV) is timed on before the next one's turn, after one "
+                            "untimed call (default 8)")
     bench.add_argument("--reference-frames", type=int, default=5, metavar="N",
                        help="frames to time the slow reference on (default 5; 0 skips it)")
     bench.add_argument("--no-opencv", action="store_true",
@@ -87,7 +93,7 @@ def cmd_bench(args):
     from ..bench.scaling import SIZES, format_scaling, scaling_study
     from ..bench.scaling_plot import plot_scaling
     from ..bench.latency import format_stages, format_table, format_threads, run_benchmark
-    from ..bench.timing import read_frames
+    from ..bench.timing import TURN_FRAMES, read_frames
     from ..bench.two_cores import format_two_cores, two_core_ceiling
     from ..detector.config import load_config
     from ..detector.model import load_model
@@ -95,10 +101,10 @@ def cmd_bench(args):
     from ..files.shared_data import data_dir
 
     log = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
-    for name in ("frames", "repeat", "rounds"):
+    for name in ("frames", "repeat", "rounds", "turn_frames"):
         value = getattr(args, name)
         if value is not None and value < 1:
-            raise InputError(f"--{name} must be at least 1, got {value}")
+            raise InputError(f"--{name.replace('_', '-')} must be at least 1, got {value}")
     if args.video:
         return _video_benchmark(args, log)
     if args.long_run:
@@ -118,7 +124,8 @@ def cmd_bench(args):
 
     run = run_benchmark(frames, threads=threads, repeat=args.repeat,
                         reference_frames=args.reference_frames, opencv=not args.no_opencv,
-                        model=model, config=config, log=log)
+                        model=model, config=config, log=log,
+                        turn_frames=args.turn_frames or TURN_FRAMES)
     try:
         # Only known once a parallel kernel has run; it decides how threads behave under load.
         print(f"numba threading layer: {numba.threading_layer()}")

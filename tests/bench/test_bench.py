@@ -104,7 +104,8 @@ def test_missing_opencv_peer_is_a_note_not_a_failure(model, monkeypatch, tmp_pat
     assert any("setup.sh" in note for note in run.notes)
 
 
-def test_thread_counts_are_timed_in_turn_on_every_frame(model, monkeypatch):
+@pytest.mark.parametrize("turn_frames", [1, 2])
+def test_thread_counts_are_timed_in_turns(model, monkeypatch, turn_frames):
     # A slow spell of a shared machine must hit every thread count alike.
     calls = []
     original = Detector.__call__
@@ -116,11 +117,18 @@ def test_thread_counts_are_timed_in_turn_on_every_frame(model, monkeypatch):
     monkeypatch.setattr(Detector, "__call__", detect)
     frames = [np.full((180, 320, 3), k, np.uint8) for k in range(3)]
     run = run_benchmark(frames, threads=(2, 1), repeat=2, reference_frames=0, opencv=False,
-                        model=model, log=lambda line: None)
+                        model=model, log=lambda line: None, turn_frames=turn_frames)
     assert [r.name for r in run.results] == ["fastdet 1 thread", "fastdet 2 threads"]
     assert [len(r.seconds) for r in run.results] == [3, 3]
-    # One untimed call each on the first frame, then per frame: 1 thread twice, 2 threads twice.
-    assert calls == [(1, 0), (2, 0)] + [(threads, k) for k in range(3) for threads in (1, 1, 2, 2)]
+    # One untimed call each on the first frame, then per turn and thread count (1, then 2):
+    # one untimed call on the turn's first frame, two timed calls on each of its frames.
+    expected = [(1, 0), (2, 0)]
+    for first in range(0, 3, turn_frames):
+        for threads in (1, 2):
+            expected += [(threads, first)]
+            expected += [(threads, k) for k in range(first, min(first + turn_frames, 3))
+                         for _ in range(2)]
+    assert calls == expected
 
 
 def test_floor_counts_votes_and_multiply_adds(model):
@@ -162,3 +170,17 @@ def test_bench_command_prints_the_tables(capsys, model_path, data_dir):
 def test_bench_rejects_a_bad_size(capsys, model_path):
     assert main(["bench", "--model", str(model_path), "--size", "big"]) == EXIT_ERROR
     assert "--size must look like 1280x720" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("option", ["--turn-frames", "--repeat"])
+def test_bench_rejects_counts_below_one(capsys, model_path, option):
+    assert main(["bench", "--model", str(model_path), option, "0"]) == EXIT_ERROR
+    assert f"{option} must be at least 1, got 0" in capsys.readouterr().err
+
+
+def test_bench_help_names_the_turn_frames_default(capsys):
+    from fastdet.bench.timing import TURN_FRAMES
+    with pytest.raises(SystemExit):
+        main(["bench", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert f"untimed call (default {TURN_FRAMES})" in help_text

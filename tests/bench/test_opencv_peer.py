@@ -144,16 +144,19 @@ def test_the_checkout_has_the_peer_script():
     assert (benchmarks_dir() / "opencv_peer" / "peer.py").is_file()
 
 
-def test_opencv_is_timed_in_turn_with_fastdet_on_every_frame(model, peer_log, monkeypatch):
+@pytest.mark.parametrize("turn_frames", [1, 2, 8])
+def test_opencv_is_timed_in_turns_with_fastdet_on_every_frame(model, peer_log, monkeypatch,
+                                                               turn_frames):
     log_fastdet_calls(monkeypatch, peer_log)
     frames = numbered_frames(3)
     run = run_benchmark(frames, threads=(1, 2), repeat=2, reference_frames=0, opencv=True,
-                        model=model, log=lambda line: None)
+                        model=model, log=lambda line: None, turn_frames=turn_frames)
     assert run.notes == []
     assert [r.name for r in run.results] == [
         "fastdet 1 thread", "fastdet 2 threads",
         "opencv same windows, 1 thread", "opencv native multiscale, 1 thread",
         "opencv same windows, 2 threads", "opencv native multiscale, 2 threads"]
+    # Only the timed calls count, not the warm-up of each turn.
     assert all(len(r.seconds) == 3 and r.frame_indices == [0, 1, 2] for r in run.results)
     same = run.opencv_same_windows
     assert same.windows_per_frame == run.results[0].windows_per_frame  # the same windows
@@ -161,13 +164,27 @@ def test_opencv_is_timed_in_turn_with_fastdet_on_every_frame(model, peer_log, mo
 
     calls = peer_log.read_text().splitlines()
     timed = calls[calls.index("fastdet 0 1"):]  # from fastdet's untimed first call on
-    # Untimed first calls, then per frame: fastdet 1 thread twice, 2 threads twice, then
-    # OpenCV with 1 and 2 threads, each thread count twice per mode (same windows, native).
+    # Untimed first calls, then per turn: fastdet with 1 thread, once untimed on the turn's
+    # first frame and twice on each of its frames, the same with 2 threads, then OpenCV:
+    # once per mode (same windows, native) on the turn's first frame with 1 and 2 threads,
+    # then per frame with 1 and 2 threads, each thread count twice per mode.
     expected = ["fastdet 0 1", "fastdet 0 2"]
-    for k in range(3):
-        expected += [f"fastdet {k} 1"] * 2 + [f"fastdet {k} 2"] * 2
-        expected += [f"opencv {k} 1"] * 4 + [f"opencv {k} 2"] * 4
+    for first in range(0, 3, turn_frames):
+        turn = range(first, min(first + turn_frames, 3))
+        for threads in (1, 2):
+            expected += [f"fastdet {first} {threads}"]
+            for k in turn:
+                expected += [f"fastdet {k} {threads}"] * 2
+        expected += [f"opencv {first} 1"] * 2 + [f"opencv {first} 2"] * 2
+        for k in turn:
+            expected += [f"opencv {k} 1"] * 4 + [f"opencv {k} 2"] * 4
     assert timed == expected
+
+
+def test_turn_frames_below_one_is_refused(model):
+    with pytest.raises(ValueError, match="turn_frames must be at least 1"):
+        time_fastdet_in_turn([("fastdet", Detector(model=model, threads=1))],
+                             numbered_frames(2), turn_frames=0)
 
 
 def test_a_peer_that_fails_mid_run_leaves_a_note_and_fastdet_timed(model, peer_log,
@@ -214,12 +231,17 @@ def test_the_peer_files_are_removed_when_it_closes(model, peer_log):
     assert peer._process is None
 
 
-def test_time_fastdet_in_turn_calls_also_after_each_frame(model):
+@pytest.mark.parametrize("turn_frames, turns", [(1, [[0], [1], [2], [3], [4]]),
+                                                (2, [[0, 1], [2, 3], [4]]),
+                                                (5, [[0, 1, 2, 3, 4]]),
+                                                (9, [[0, 1, 2, 3, 4]])])
+def test_time_fastdet_in_turn_calls_also_after_each_turn(model, turn_frames, turns):
     seen = []
     detector = Detector(model=model, threads=1)
-    time_fastdet_in_turn([("fastdet", detector)], numbered_frames(3), repeat=1,
-                         also=seen.append)
-    assert seen == [0, 1, 2]
+    result, = time_fastdet_in_turn([("fastdet", detector)], numbered_frames(5), repeat=1,
+                                   also=seen.append, turn_frames=turn_frames)
+    assert seen == turns
+    assert result.frame_indices == [0, 1, 2, 3, 4] and len(result.seconds) == 5
 
 
 
