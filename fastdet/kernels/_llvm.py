@@ -26,6 +26,24 @@ def store_vector(builder, value, data, index, align=1):
     builder.store(value, pointer, align=align)
 
 
+def prefetch(builder, data, index):
+    """Ask for the cache line of element ``index`` of ``data`` to be read (``llvm.prefetch``).
+
+    A hint only: it never faults, so ``index`` may lie past the array.
+    """
+    i8p = ir.IntType(8).as_pointer()
+    i32 = ir.IntType(32)
+    pointer = builder.bitcast(builder.gep(data, [index]), i8p)
+    name = "llvm.prefetch.p0i8"
+    function = builder.module.globals.get(name)
+    if function is None:
+        function = ir.Function(builder.module,
+                               ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), name)
+    # read, keep in every cache level (locality 3), data cache
+    builder.call(function, [pointer, ir.Constant(i32, 0), ir.Constant(i32, 3),
+                            ir.Constant(i32, 1)])
+
+
 def box_sums(builder, rows, factor, channels):
     """Sums of ``factor x factor`` pixel boxes, as 16-bit lanes.
 

@@ -56,6 +56,7 @@ from numba.extending import intrinsic
 from ._llvm import HAVE_AVX2, HAVE_AVX512BW, HAVE_SSSE3, box_sums, load_vector, store_vector
 from .alloc import empty, full
 from .inner import CALLED_FROM_KERNELS_ONLY
+from .prefetch import prefetch_byte, prefetch_row
 
 #: OpenCV's INTER_RESIZE_COEF_SCALE (11 fractional bits).
 _COEF_SCALE = np.float32(2048)
@@ -500,14 +501,21 @@ def _row_slots(held, upper, lower):
     return slot_upper, new_upper, slot_lower, new_lower
 
 
+#: Output rows ahead whose lower source row is asked for (see
+#: :mod:`fastdet.kernels.prefetch`).
+_PREFETCH_ROWS = 2
+
+
 @njit(cache=True, nogil=True)
 def _resize(src, first, second, w_first, w_second, base, usable, masks, weights, block_base,
             picks, y_first, y_second, w_y_first, w_y_second, out):
     """The resize with this CPU's best horizontal path, the only one compiled."""
     rows = empty((2, out.shape[1]), dtype=np.int16)
     held = full(2, -1, np.int64)
+    last = out.shape[0] - 1
     for dy in range(out.shape[0]):
         upper, lower = y_first[dy], y_second[dy]
+        prefetch_row(src, y_second[min(dy + _PREFETCH_ROWS, last)])
         slot_upper, new_upper, slot_lower, new_lower = _row_slots(held, upper, lower)
         if new_upper:
             _horizontal_native(src[upper], first, second, w_first, w_second, base, usable,
@@ -590,11 +598,18 @@ def _halve(src, channels, out):
     c = uint64(channels)
     step = uint64(_HALF_BLOCK)
     blocks = n // step if channels == 3 else uint64(0)
+    ahead = np.int64(2 * _PREFETCH_ROWS)
+    last = np.int64(src.shape[0] - 2)
     for dy in range(out.shape[0]):
         upper = src[2 * dy]
         lower = src[2 * dy + 1]
         row = out[dy]
+        next_upper = src[min(2 * dy + ahead, last)]
+        next_lower = src[min(2 * dy + ahead + 1, last + 1)]
         for k in range(blocks):
+            # One 64-byte line of each source row per 96 bytes read: every line.
+            prefetch_byte(next_upper, k * (step + step))
+            prefetch_byte(next_lower, k * (step + step))
             _halve3_block(upper, lower, k * (step + step), row, k * step)
         for i in range(blocks * step, n):
             s = (i // c) * (c + c) + i % c
