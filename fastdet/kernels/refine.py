@@ -22,6 +22,7 @@ from numba import njit
 
 from .alloc import empty, zeros
 from .inner import CALLED_FROM_KERNELS_ONLY
+from .prefetch import LINE_BYTES, prefetch_byte
 
 __all__ = ["box_heat_features", "snap_box_sides"]
 
@@ -211,6 +212,15 @@ def _strongest_column(frame, centre, reach, first_row, stop_row, first_column, s
         return -1
     for k in range(count):
         strength[k] = 0
+    # Ask for all the strip's lines at once (see fastdet.kernels.prefetch):
+    # the frame's rows come from memory, one short run each, and read one
+    # after the other each would wait for its own miss.
+    row_bytes, pixel_bytes = np.int64(frame.strides[0]), np.int64(frame.strides[1])
+    start = np.int64(low - 1) * pixel_bytes
+    for row in range(first_row - 1, stop_row + 1):
+        for offset in range(start, start + (count + 2) * pixel_bytes + LINE_BYTES - 1,
+                            LINE_BYTES):
+            prefetch_byte(frame, row * row_bytes + offset)
     for row in range(first_row, stop_row):
         for k in range(count + 2):
             column = low - 1 + k

@@ -3,7 +3,7 @@
 A prefetch never changes a result (the conversion's and resize's own tests
 compare their bytes with OpenCV's), so what is checked here is that it is
 there: each kernel compiled afresh from its Python source, its LLVM IR and,
-on x86-64, its machine code.
+on x86-64, its machine code (the helpers they call are linked in).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from fastdet.kernels import convert, resize
+from fastdet.kernels import convert, refine, resize
 
 X86_64 = platform.machine().lower() in ("x86_64", "amd64")
 
@@ -62,3 +62,11 @@ def test_the_resize_asks_for_source_rows_ahead():
 def test_the_halving_asks_for_source_rows_ahead():
     image = np.zeros((20, 64 * 3), np.uint8)
     check_prefetches(*fresh(resize._halve, image, 3, np.empty((10, 32 * 3), np.uint8)))
+
+
+def test_the_side_snap_asks_for_its_strips_at_once():
+    frame = np.zeros((40, 60, 3), np.uint8)
+    boxes = np.array([[10, 5, 40, 35]], np.int64)
+    limits = np.array([0, 0, 60, 40], np.int64)
+    check_prefetches(*fresh(refine.snap_box_sides, frame, boxes, 0.1, limits,
+                            np.empty_like(boxes)))
