@@ -113,7 +113,7 @@ def run_benchmark(frames, threads=(1,), repeat=3, reference_frames=5, opencv=Tru
 
 
 class _OpenCVInTurn:
-    """The OpenCV peer's turn on each turn's frames; a peer that fails leaves a note, not a failure."""
+    """The OpenCV peer's part of each turn; a peer that fails leaves a note, not a failure."""
 
     def __init__(self, frames, plans, threads, repeat, model, notes, log):
         self.notes, self.peer = notes, None

@@ -153,14 +153,14 @@ def time_fastdet_in_turn(named_detectors, frames, repeat=3, also=None,
     timed calls on each of the turn's frames, then the next detector does the
     same, each with its own thread counts set (Numba's and OpenCV's, which
     :class:`~fastdet.detector.detector.Detector` sets process-wide when it is
-    made), then ``also`` gets the turn's frame indices.  A slow spell of a shared machine
-    then hits all of them alike: timed one after the other, a minute apart,
-    two threads came out 0.86x, 2.2x and 1.6x one thread in three runs of
-    ``fastdet bench`` on one machine (AMD EPYC Zen 4, 2 vCPUs).  Turns of
-    several frames time each pipeline as a video runs it, frames back to
-    back: on a 2-core Xeon VM a one-thread frame took 0.2-0.45 ms longer in
-    each of the first three calls after the process had waited or spun for
-    6 ms, so turns of one frame charge that wake-up to every frame.
+    made), then ``also`` gets the turn's frame indices.  A slow spell of a
+    shared machine then hits all of them alike: timed one after the other, a
+    minute apart, two threads came out 0.86x, 2.2x and 1.6x one thread in
+    three runs of ``fastdet bench`` on one machine (AMD EPYC Zen 4, 2 vCPUs).
+    Turns of several frames time each pipeline as a video runs it, frames
+    back to back: on a 2-core Xeon VM a one-thread frame took 0.2-0.45 ms
+    longer in each of the first three calls after the process had waited or
+    spun for 6 ms, so turns of one frame charge that wake-up to every frame.
 
     Parameters
     ----------

@@ -8,11 +8,13 @@ conversion of a 1280x194 band took 0.46 ms from memory against 0.16 ms from
 cache, while a plain copy of the same bytes streamed at 11 GB/s (0.065 ms).
 Asking for the row two rows ahead while converting one removes the wait:
 0.16 ms from memory.  The resize, reading the converted band after other
-scales' work, gains the same way (0.38 against 0.27 ms for a frame's
-resizes from memory and from cache).  The side snap of the box refinement
-reads a short strip of each of a box's rows from the frame, every row a miss
-of its own: all its lines asked for at once, a frame's labelling stage took
-0.121-0.126 against 0.142-0.144 ms.
+scales' work, gains less: a frame's resizes took 0.38 ms from memory and
+0.27 ms from cache, 0.31-0.33 ms from memory with its rows asked for ahead.
+The side snap of the box refinement reads a short strip of each of a box's
+rows from the frame, every row a miss of its own: with all its lines asked
+for at once, a frame's labelling stage took 0.121-0.126 against 0.142-0.144
+ms.  (The cells, which read what the resize has just written, measured no
+change with the next cell row asked for ahead.)
 
 A prefetch is a hint: it never faults and never changes a result, so the
 kernels' outputs are the same bytes with and without it.  Numba's on-disk
