@@ -8,6 +8,10 @@ many frames at once (:mod:`fastdet.video.ahead`).  Passes of all settings
 alternate (round-robin) and the median pass is kept, so a slow spell of a
 shared machine hits every setting alike.
 
+Each row also counts how often the process's threads went to sleep per
+frame (voluntary context switches): with two threads, the GIL taken back
+after each kernel call is what they mostly wait for.
+
 A pass is the frames played forward and back to at least
 :data:`MIN_PASS_FRAMES` frames: a steady-state rate.  Passes of the test
 clip's 38 frames alone last about 0.1 s, and on the 2-core machines here
@@ -20,6 +24,11 @@ from __future__ import annotations
 import statistics
 import time
 from dataclasses import dataclass
+
+try:
+    import resource
+except ImportError:  # Windows has no resource module: no context-switch counts
+    resource = None
 
 from ..detector.detector import Detector
 from ..video.config import TrackConfig
@@ -51,6 +60,10 @@ class PipelinePoint:
     cpu_ms_per_frame: float
     #: Median over rounds of one thread's time over this one's in the same round.
     paired_speedup: float | None = None
+    #: Median over passes of the process's voluntary context switches per frame
+    #: (a thread going to sleep: waiting for the GIL, a lock or work); ``None``
+    #: where the OS does not count them.
+    switches_per_frame: float | None = None
 
 
 def frame_level_study(frames, threads=(1, 2), rounds=3, model=None, config=None, log=print,
@@ -92,24 +105,45 @@ def frame_level_study(frames, threads=(1, 2), rounds=3, model=None, config=None,
         pipelines[count, at_once] = VideoPipeline(detector, TrackConfig())
     wall = {key: [] for key in settings}
     cpu = {key: [] for key in settings}
+    switches = {key: [] for key in settings}
     for round_index in range(rounds + 1):
         if round_index:
             log(f"pipeline round {round_index}/{rounds} ...")
         for key in settings:
             pipeline = pipelines[key]
             pipeline.reset()
+            slept = _voluntary_switches()
             started, cpu_started = time.perf_counter(), time.process_time()
             for _ in pipeline(frames, workers=key[1]):
                 pass
+            ended, cpu_ended = time.perf_counter(), time.process_time()
+            slept = _voluntary_switches() - slept if slept is not None else None
             # Round 0 loads every kernel and fills every buffer: not kept.
             if round_index:
-                wall[key].append((time.perf_counter() - started) / len(frames) * 1e3)
-                cpu[key].append((time.process_time() - cpu_started) / len(frames) * 1e3)
+                wall[key].append((ended - started) / len(frames) * 1e3)
+                cpu[key].append((cpu_ended - cpu_started) / len(frames) * 1e3)
+                if slept is not None:
+                    switches[key].append(slept / len(frames))
     base = wall[settings[0]]
     return [PipelinePoint(count, at_once, statistics.median(wall[count, at_once]),
                           statistics.median(cpu[count, at_once]),
-                          paired_speedup(base, wall[count, at_once]))
+                          paired_speedup(base, wall[count, at_once]),
+                          statistics.median(switches[count, at_once])
+                          if switches[count, at_once] else None)
             for count, at_once in settings]
+
+
+def _voluntary_switches():
+    """The process's voluntary context switches so far (all its threads), or ``None``.
+
+    Each is a thread that went to sleep and is woken again: on the 2-core
+    virtual machines here a wake-up takes 35-50 us and, with two frames scored
+    at once, the scheduler's switching code used about 0.13 ms of CPU a
+    frame (sampled with ``perf``): the table shows how often it happens.
+    """
+    if resource is None:
+        return None
+    return resource.getrusage(resource.RUSAGE_SELF).ru_nvcsw
 
 
 def paired_speedup(baseline, times):
@@ -127,8 +161,8 @@ def format_frame_level(points):
     """Markdown table of :func:`frame_level_study`, each row against one thread."""
     base = next(p for p in points if p.threads == 1)
     lines = ["| pipeline | ms per frame | CPU ms per frame | x faster than 1 thread "
-             "| x faster, median of per-round ratios |",
-             "|---|---:|---:|---:|---:|"]
+             "| x faster, median of per-round ratios | threads put to sleep per frame |",
+             "|---|---:|---:|---:|---:|---:|"]
     for point in points:
         if point.threads == 1:
             name = "1 thread"
@@ -137,6 +171,7 @@ def format_frame_level(points):
         else:
             name = f"{point.threads} threads sharing each frame"
         paired = f"{point.paired_speedup:.2f}x" if point.paired_speedup else "-"
+        slept = "-" if point.switches_per_frame is None else f"{point.switches_per_frame:.1f}"
         lines.append(f"| {name} | {point.ms_per_frame:.2f} | {point.cpu_ms_per_frame:.2f} "
-                     f"| {base.ms_per_frame / point.ms_per_frame:.2f}x | {paired} |")
+                     f"| {base.ms_per_frame / point.ms_per_frame:.2f}x | {paired} | {slept} |")
     return "\n".join(lines)

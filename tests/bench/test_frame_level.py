@@ -33,11 +33,23 @@ def test_frame_level_study_times_each_way_over_looped_passes(small_frames):
     assert [(p.threads, p.frames_at_once) for p in points] == [(1, 1), (2, 1), (2, 2)]
     assert all(p.ms_per_frame > 0 and p.cpu_ms_per_frame > 0 for p in points)
     table = format_frame_level(points).splitlines()
-    assert table[2].startswith("| 1 thread |") and table[2].endswith("| 1.00x |")
+    assert table[0].endswith("| threads put to sleep per frame |")
+    assert table[2].startswith("| 1 thread |") and "| 1.00x | 1.00x |" in table[2]
     assert table[3].startswith("| 2 threads sharing each frame |")
     assert table[4].startswith("| 2 threads, 2 frames at once |")
     assert points[0].paired_speedup == 1.0
     assert all(p.paired_speedup > 0 for p in points)
+    # One thread never waits for another; a thread sharing each frame sleeps
+    # between frames waiting for the next one's tasks.
+    one, shared, _ = (p.switches_per_frame for p in points)
+    assert 0 <= one < 1 <= shared
+    assert all(row.endswith(f"| {p.switches_per_frame:.1f} |") for row, p in zip(table[2:], points))
+
+
+def test_frame_level_table_says_so_where_sleeps_are_not_counted():
+    from fastdet.bench.frame_level import PipelinePoint
+    table = format_frame_level([PipelinePoint(1, 1, 2.0, 2.0, 1.0, None)]).splitlines()
+    assert table[2] == "| 1 thread | 2.00 | 2.00 | 1.00x | 1.00x | - |"
 
 
 def test_paired_speedup_is_the_median_of_each_rounds_ratio():
