@@ -112,12 +112,13 @@ def frame_level_study(frames, threads=(1, 2), rounds=3, model=None, config=None,
         for key in settings:
             pipeline = pipelines[key]
             pipeline.reset()
-            slept = _voluntary_switches()
+            switches_before = _voluntary_switches()
             started, cpu_started = time.perf_counter(), time.process_time()
             for _ in pipeline(frames, workers=key[1]):
                 pass
             ended, cpu_ended = time.perf_counter(), time.process_time()
-            slept = _voluntary_switches() - slept if slept is not None else None
+            slept = (None if switches_before is None
+                     else _voluntary_switches() - switches_before)
             # Round 0 loads every kernel and fills every buffer: not kept.
             if round_index:
                 wall[key].append((ended - started) / len(frames) * 1e3)

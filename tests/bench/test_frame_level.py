@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import pytest
 
-from fastdet.bench.frame_level import (MIN_PASS_FRAMES, format_frame_level, frame_level_study,
-                                       looped, paired_speedup)
+from fastdet.bench.frame_level import (MIN_PASS_FRAMES, PipelinePoint, format_frame_level,
+                                       frame_level_study, looped, paired_speedup)
 
 
 def test_looped_plays_the_frames_forward_and_back_to_the_length():
@@ -47,7 +47,6 @@ def test_frame_level_study_times_each_way_over_looped_passes(small_frames):
 
 
 def test_frame_level_table_says_so_where_sleeps_are_not_counted():
-    from fastdet.bench.frame_level import PipelinePoint
     table = format_frame_level([PipelinePoint(1, 1, 2.0, 2.0, 1.0, None)]).splitlines()
     assert table[2] == "| 1 thread | 2.00 | 2.00 | 1.00x | 1.00x | - |"
 
