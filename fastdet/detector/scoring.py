@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..kernels.band import BandScorer
 from ..kernels.colour import ColourMapRows
 from ..kernels.hog import PhaseCellRows, phase_layout_shape
 from ..kernels.resize import RowResizer
@@ -68,12 +69,15 @@ def kernel_families(options):
     families = ["resize", "heat", "label", "refine"]
     if options.color_space == "HLS":
         families.append("convert")
+    colour = bool(options.spatial_size or options.hist_bins)
     if options.use_hog and options.hog_channel == "all" and (
             options.pixels_per_cell, options.orientations, options.cells_per_block,
             options.block_norm) == (8, 9, 2, "L2-Hys"):
         # The warm-up's shapes; other settings compile at their first frame.
-        families += ["hog", "score"]
-    if options.spatial_size or options.hist_bins:
+        # With colour features the scales take one call for the three
+        # (_ScaleWork.band), which compiles the kernels it calls.
+        families += ["band"] if colour else ["hog", "score"]
+    elif colour:
         families.append("colour")
     return tuple(families)
 
@@ -298,8 +302,20 @@ class ScaleScorer:
         if first >= stop:
             return
         step_px = plan.step_cells * self.options.pixels_per_cell
-        self.score_rows(prepared, plan, first * step_px, (stop - 1) * step_px + WINDOW, timings)
-        self.score_windows(plan, first, stop, scores, timings)
+        top, bottom = first * step_px, (stop - 1) * step_px + WINDOW
+        work = self._work(plan)
+        if work.band is None:
+            self.score_rows(prepared, plan, top, bottom, timings)
+            self.score_windows(plan, first, stop, scores, timings)
+            return
+        # One kernel call for the cells, colour maps and scores: fewer GIL
+        # hand-overs (see fastdet.kernels.band).
+        converted, _ = self._scaled_rows(prepared, plan, top, bottom, timings)
+        cells, colour, windows = work.band(converted, converted[:work.covered_rows], top,
+                                           bottom, first, stop, scores)
+        timings["cells"] += cells
+        timings["colour_maps"] += colour
+        timings["blocks_score"] += windows
 
     def score_rows(self, prepared, plan, top, bottom, timings):
         """The features of scaled pixel rows ``top`` .. ``bottom - 1`` of a scale.
@@ -312,17 +328,8 @@ class ScaleScorer:
         """
         options = self.options
         work = self._work(plan)
-        t0 = time.perf_counter()
-        ox, oy = prepared.origin
-        x0, y0, x1, y1 = plan.roi
-        region = (slice(y0 - oy, y1 - oy), slice(x0 - ox, x1 - ox))
-        rows = (top - 1, bottom + 1)
-        converted = self.scaled_region(prepared.converted[region], plan, 3, rows)
-        grey = None
-        if prepared.grey is not None:
-            grey = self.scaled_region(prepared.grey[region][:, :, None], plan, 1, rows)
+        converted, grey = self._scaled_rows(prepared, plan, top, bottom, timings)
         t1 = time.perf_counter()
-        timings["resize_convert"] += t1 - t0
         if options.use_hog:
             # Cells in the phase layout of the window step, so each block row
             # is normalised and scored along whole rows, never writing the
@@ -337,6 +344,22 @@ class ScaleScorer:
             # the rows of the scale's maps.
             work.colour_rows(converted[:work.covered_rows], top, bottom)
             timings["colour_maps"] += time.perf_counter() - t1
+
+    def _scaled_rows(self, prepared, plan, top, bottom, timings):
+        """``(colour, grey)``: the scale's resized region with rows ``top - 1`` ..
+        ``bottom`` computed (the gradients of the outer cells need one row
+        either side); ``grey`` None unless the HOG is grey."""
+        t0 = time.perf_counter()
+        ox, oy = prepared.origin
+        x0, y0, x1, y1 = plan.roi
+        region = (slice(y0 - oy, y1 - oy), slice(x0 - ox, x1 - ox))
+        rows = (top - 1, bottom + 1)
+        converted = self.scaled_region(prepared.converted[region], plan, 3, rows)
+        grey = None
+        if prepared.grey is not None:
+            grey = self.scaled_region(prepared.grey[region][:, :, None], plan, 1, rows)
+        timings["resize_convert"] += time.perf_counter() - t0
+        return converted, grey
 
     def score_windows(self, plan, first, stop, scores, timings):
         """Add the margins of window rows ``first`` .. ``stop - 1`` to ``scores``, from
@@ -413,6 +436,12 @@ class _ScaleWork:
             plan.grid, WINDOW, step_px, hog_args,
             (box, scorer.spatial_weights) if options.spatial_size else None,
             (tile_sums, tile) if options.hist_bins else None)
+        # The three in one call, where the kernel serves these options (HOG of
+        # the colour image itself, not of its grey).
+        self.band = None
+        if (options.hog_channel == "all"
+                and BandScorer.fits(self.cell_rows, self.colour_rows, self.score_windows)):
+            self.band = BandScorer(self.cell_rows, self.colour_rows, self.score_windows)
 
     def resizer(self, region_shape):
         """The :class:`~fastdet.kernels.resize.RowResizer` of regions of this shape to

@@ -762,6 +762,13 @@ class ColourMapRows:
         """Compute the maps of pixel rows ``top`` .. ``bottom - 1`` of ``image`` (both
         multiples of the box factor, and of the tile when there are tile sums) into
         :attr:`tiles` and :attr:`box`."""
+        arguments = self.arguments(image, top, bottom)
+        if arguments is not None:
+            _colour_maps(*arguments)
+
+    def arguments(self, image, top, bottom):
+        """The arguments of the ``_colour_maps`` kernel call :meth:`__call__` makes,
+        or None when it computes nothing."""
         if (image.shape != self.image_shape or image.dtype != np.uint8
                 or not image.flags.c_contiguous):
             raise ValueError(f"expected a C-contiguous uint8 image of shape {self.image_shape}, "
@@ -771,12 +778,12 @@ class ColourMapRows:
                              f"{self.factor} pixels")
         top, bottom = max(0, int(top)), min(self.image_shape[0], int(bottom))
         if top >= bottom:
-            return
+            return None
         tile, factor = self.tile, max(self.factor, 1)
         tiles = self.tiles[top // tile:bottom // tile] if self._want[0] else self.tiles
         box = self.box[top // factor:bottom // factor] if self._want[1] else self.box
-        _colour_maps(self._path, image[top:bottom], self._lut, self._table, tile, self.factor,
-                     self._want[0], self._want[1], tiles, box)
+        return (self._path, image[top:bottom], self._lut, self._table, tile, self.factor,
+                self._want[0], self._want[1], tiles, box)
 
 
 def _colour_out(out, shape):

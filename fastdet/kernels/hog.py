@@ -517,24 +517,33 @@ class PhaseCellRows:
             raise ValueError(f"phase_step must be >= 1 and phase_pad >= 0, "
                              f"got {phase_step!r}, {phase_pad!r}")
         self.image_shape = (height, width, channels)
+        self.pixels_per_cell = (ppc_y, ppc_x)
         self.cells_y, cells_x = height // ppc_y, width // ppc_x
         shape = phase_layout_shape(self.cells_y, cells_x, channels, nbins, phase_step,
                                    phase_pad)
         self.out = _output(out, shape)
         self._out_flat = self.out.reshape(-1)
-        self._kernel, self._args = _serial_cell_rows(ppc_y, ppc_x, nbins, channels, cells_x,
+        self.kernel, self._args = _serial_cell_rows(ppc_y, ppc_x, nbins, channels, cells_x,
                                                      _layout(shape, phase_step, cells_x),
                                                      self._out_flat)
 
     def __call__(self, image, first, stop):
         """Compute cell rows ``first`` .. ``stop - 1`` of ``image`` into :attr:`out`."""
+        call = self.call(image, first, stop)
+        if call is not None:
+            call[0](*call[1])
+
+    def call(self, image, first, stop):
+        """``(kernel, arguments)`` of what :meth:`__call__` runs, or None when it
+        computes nothing (no rows, or no cells)."""
         if (image.shape != self.image_shape or image.dtype != np.uint8
                 or not image.flags.c_contiguous):
             raise ValueError(f"expected a C-contiguous uint8 image of shape {self.image_shape}, "
                              f"got {image.dtype} {image.shape}")
         first, stop = max(0, int(first)), min(self.cells_y, int(stop))
-        if first < stop and self._out_flat.size:
-            self._kernel(image, first, stop, *self._args)
+        if first >= stop or not self._out_flat.size:
+            return None
+        return self.kernel, (image, first, stop, *self._args)
 
 
 def _zero_unmapped(phase, cells_x, step):

@@ -826,6 +826,13 @@ class WindowRowScorer:
 
     def __call__(self, scores, first, stop):
         """Add the scores of window rows ``first`` .. ``stop - 1`` to ``scores``."""
+        arguments = self.arguments(scores, first, stop)
+        if arguments is not None:
+            _score_window_rows(*arguments)
+
+    def arguments(self, scores, first, stop):
+        """The arguments of the ``_score_window_rows`` kernel call :meth:`__call__`
+        makes, or None when it scores nothing."""
         if scores.shape != self.grid:
             raise ValueError(f"the score grid has shape {scores.shape}, "
                              f"the scorer was made for {self.grid}")
@@ -833,7 +840,7 @@ class WindowRowScorer:
             raise ValueError("the score grid must be a C-contiguous float32 array")
         first, stop = max(0, int(first)), min(self.grid[0], int(stop))
         if self.grid[1] == 0 or first >= stop:
-            return
+            return None
         band_scores = scores[first:stop]
         # Pixel rows the band's windows cover.
         top, bottom = first * self.step_px, (stop - 1) * self.step_px + self.window
@@ -851,8 +858,7 @@ class WindowRowScorer:
         if self._tiles is not None:
             tile_sums, tile, size, step = self._tiles
             tile_args = (tile_sums[top // tile:bottom // tile], size, step)
-        _score_window_rows(*hog_args, scores, first, stop, band_scores, *spatial_args,
-                           *tile_args)
+        return (*hog_args, scores, first, stop, band_scores, *spatial_args, *tile_args)
 
 
 def add_spatial_scores(spatial, weights, step_px, out, parallel=False):

@@ -78,6 +78,32 @@ def _warm_score():
                       tiles=(np.zeros((9, 9), np.float32), 16))
 
 
+def _warm_band():
+    from .band import BandScorer
+    from .colour import ColourMapRows
+    from .hog import PhaseCellRows, phase_layout_shape
+    from .score import WindowRowScorer, phase_scoring_pad
+    # A scale as the detector binds one (fastdet.detector.scoring._ScaleWork):
+    # 64-pixel windows stepped by 16 pixels (2 cells), spatial boxes of 2
+    # pixels, histogram tiles of 16; 12 cell columns, whole groups of cells.
+    image = np.ascontiguousarray(_frame_band(72, 96))
+    pad = phase_scoring_pad(12, 2, (2, 2))
+    cells = np.zeros(phase_layout_shape(9, 12, 3, 9, 2, pad), np.float32)
+    cell_rows = PhaseCellRows(image.shape, (8, 8), 9, cells, 2, pad)
+    lut = np.ascontiguousarray(np.repeat(np.ones((3, 32), np.float32), 8, axis=1))
+    tiles, box = np.empty((4, 6), np.float32), np.empty((32, 48, 3), np.float32)
+    colour_rows = ColourMapRows((64, 96, 3), lut, 16, 2, (tiles, box))
+    windows = WindowRowScorer((1, 3), 64, 16,
+                              (cells, 12, (2, 2), "L2-Hys", np.zeros((7, 7, 108), np.float32), 2),
+                              (box, np.zeros((32, 32, 3), np.float32)), (tiles, 16))
+    if not BandScorer.fits(cell_rows, colour_rows, windows):
+        # No band kernel on this machine: the detector calls the three.
+        _warm_hog(), _warm_score(), _warm_colour()
+        return
+    BandScorer(cell_rows, colour_rows, windows)(image, image[:64], 0, 64, 0, 1,
+                                                np.zeros((1, 3), np.float32))
+
+
 def _warm_colour():
     from .colour import colour_maps
     image = np.ascontiguousarray(_frame_band(16, 32))
@@ -171,9 +197,12 @@ def _warm_hog_api():
 #: compile against 0.45 s, so the two are apart); "tails" the per-pixel
 #: kernels for the pixels past the colour conversion's whole vector blocks
 #: and the cells past the cell kernel's whole groups (frame widths such as
-#: 1366, not the default search at 640-1920 pixels of 16:9 frames).
+#: 1366, not the default search at 640-1920 pixels of 16:9 frames); "band" a
+#: scale's cells, colour maps and scores in one call (:mod:`.band`), which
+#: compiles the kernels of "hog", "score" and "colour" that it calls, so a
+#: detection with the default options needs it instead of those three.
 FAMILIES = {"convert": _warm_convert, "resize": _warm_resize, "hog": _warm_hog,
-            "score": _warm_score, "colour": _warm_colour, "heat": _warm_heat,
+            "score": _warm_score, "colour": _warm_colour, "band": _warm_band, "heat": _warm_heat,
             "label": _warm_label, "refine": _warm_refine, "split": _warm_split,
             "smooth": _warm_smooth, "track": _warm_track, "hog_api": _warm_hog_api,
             "tails": _warm_tails}
@@ -182,7 +211,8 @@ FAMILIES = {"convert": _warm_convert, "resize": _warm_resize, "hog": _warm_hog,
 #: compiled before (see :func:`cold_families`): module, name.
 _PROBES = {"convert": ("convert", "_bgr_to_hls"), "resize": ("resize", "_resize"),
            "hog": ("hog", "_cell_rows_u8_fast"), "score": ("score", "_score_window_rows"),
-           "colour": ("colour", "_colour_maps"), "heat": ("heat", "box_heat_region"),
+           "colour": ("colour", "_colour_maps"), "band": ("band", "_features_and_scores"),
+           "heat": ("heat", "box_heat_region"),
            "label": ("label", "heat_blobs"), "refine": ("refine", "box_heat_features"),
            "split": ("label", "split_component"),
            "smooth": ("heat", "decay_heat"),

@@ -184,6 +184,32 @@ def test_threaded_and_serial_detectors_agree_exactly(data_dir, cut_scales, monke
         Detector(threads=1)  # restore the thread count for later tests
 
 
+@pytest.mark.parametrize("size", [(1280, 720), (960, 540), (1920, 1080)])
+def test_default_scales_take_one_kernel_call_and_score_what_three_calls_do(data_dir, size,
+                                                                           monkeypatch):
+    """Every scale of the default search, at the three frame sizes, is scored in one
+    kernel call (fastdet.kernels.band), and the hits are those of the three calls."""
+    import cv2
+
+    from fastdet.kernels.band import BandScorer
+    frames = [cv2.resize(cv2.imread(str(path)), size)
+              for path in sorted((data_dir / "test_images").glob("*.jpg"))[:3]]
+    one_call = Detector(threads=1)
+    expected = [one_call.hits(frame) for frame in frames]
+    plans = one_call.plans(size)
+    assert all(one_call.scorer._work(plan).band is not None for plan in plans)
+    monkeypatch.setattr(BandScorer, "fits", staticmethod(lambda *bound: False))
+    three_calls = Detector(threads=1)
+    assert all(three_calls.scorer._work(plan).band is None for plan in three_calls.plans(size))
+    for frame, hits in zip(frames, expected):
+        again = three_calls.hits(frame)
+        np.testing.assert_array_equal(again.boxes, hits.boxes)
+        np.testing.assert_array_equal(again.scores, hits.scores)
+    assert sum(len(hits.scores) for hits in expected) > 0
+    assert one_call.timings["cells"] > 0 and one_call.timings["colour_maps"] > 0
+    assert one_call.timings["blocks_score"] > 0
+
+
 def test_buffers_follow_the_plan_objects(random_model):
     import cv2
     detector = Detector(random_model, threads=1)

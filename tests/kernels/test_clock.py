@@ -1,10 +1,13 @@
 """The clock probe: its chain against plain Python, and the clock it measures."""
 
+import time
+
 import numpy as np
 import pytest
+from numba import njit
 
 from fastdet.bench.floor import measured_clock_hz
-from fastdet.kernels.clock import integer_chain
+from fastdet.kernels.clock import MONOTONIC_CLOCK, integer_chain, monotonic_ns
 from naive import naive_integer_chain
 
 
@@ -20,3 +23,17 @@ def test_measured_clock_is_a_cpu_clock():
     # A sanity range, not a speed figure: 3 dependent one-cycle operations a
     # step.  A chain the compiler had shortened would measure far above it.
     assert 0.2e9 < measured_clock_hz(seconds=0.05, steps=200_000) < 10e9
+
+
+@njit(cache=True)
+def _read_clock(clock_id):
+    return monotonic_ns(clock_id)
+
+
+@pytest.mark.skipif(MONOTONIC_CLOCK is None, reason="no clock_gettime on this platform")
+def test_the_kernel_clock_reads_the_monotonic_clock():
+    _read_clock(MONOTONIC_CLOCK)
+    before = time.clock_gettime_ns(MONOTONIC_CLOCK)
+    inside = _read_clock(MONOTONIC_CLOCK)
+    after = time.clock_gettime_ns(MONOTONIC_CLOCK)
+    assert before <= inside <= after
