@@ -5,7 +5,10 @@ The region any scale searches is colour-converted once per frame
 scale's window becomes 64 pixels (:func:`fastdet.kernels.resize.resize_linear`,
 bit-identical to OpenCV's bilinear resize), its HOG cells computed once, and
 every window scored from them (:mod:`fastdet.kernels.score`), plus the colour
-features' part of the score (:mod:`fastdet.kernels.colour`).
+features' part of the score (:mod:`fastdet.kernels.colour`).  With colour
+features and the default HOG, those three run in one kernel call per scale
+(:class:`fastdet.kernels.band.BandScorer`), which hands the GIL over fewer
+times when two frames are searched at once.
 """
 
 from __future__ import annotations

@@ -507,6 +507,18 @@ class PhaseCellRows:
         C-contiguous, of :func:`phase_layout_shape` for the image's cell grid.
     phase_step : int
     phase_pad : int
+
+    Attributes
+    ----------
+    out : ndarray of float32
+        The phase-layout cell histograms the calls fill.
+    kernel : numba dispatcher
+        The cell kernel the calls run (:meth:`call` gives its arguments), for
+        kernels that call it themselves (:class:`fastdet.kernels.band.BandScorer`).
+    pixels_per_cell : tuple of int
+        ``(rows, columns)`` of one cell.
+    cells_y : int
+        Cell rows of the images.
     """
 
     def __init__(self, image_shape, pixels_per_cell, nbins, out, phase_step, phase_pad):
