@@ -37,20 +37,21 @@ from ._version import __version__
 #: snapping: refine 1.66 against 3.13 here, while most families took
 #: 1.0-1.3 times as long here; with them a cold detection's own process
 #: compiled 11.6 s against the helper's 8.8 s of these.
-#: "band" was measured on an Intel Xeon (AVX-512) on 2026-12-02 and scaled to
-#: the Zen 3 figures: there it took 3.9 s against 2.7 s for "hog", "score" and
-#: "colour", whose kernels it compiles and then optimises once more inside
-#: its own (1.43 x their 7.22 here).
+#: "band" (its kernel alone: it calls the compiled code of "hog", "score" and
+#: "colour", see fastdet.kernels.calls) was measured on an Intel Xeon (AVX-512)
+#: on 2026-12-03, 0.25 s, and scaled by 1.4, about what the families above
+#: took on the Zen 3 against the Xeon.
 #: They set the order the two compiling processes take families in
 #: (:func:`compile_order`): heaviest first, so that the last to be taken are
 #: short and the two processes end close together.
-COMPILE_WEIGHTS = {"band": 10.4, "label": 6.28, "track": 5.13, "split": 4.69, "hog_api": 4.46, "refine": 3.13,
+COMPILE_WEIGHTS = {"label": 6.28, "track": 5.13, "split": 4.69, "hog_api": 4.46, "refine": 3.13,
                    "colour": 3.11, "tails": 2.68, "score": 2.66, "heat": 2.29, "resize": 1.98,
-                   "hog": 1.45, "smooth": 0.62, "convert": 0.37}
+                   "hog": 1.45, "smooth": 0.62, "convert": 0.37, "band": 0.35}
 
 #: The families every detection with the default feature options runs ("band"
-#: compiles the cell, colour-map and scoring kernels it calls).
-DETECTION_FAMILIES = ("convert", "resize", "band", "heat", "label", "refine")
+#: calls the compiled code of "hog", "score" and "colour").
+DETECTION_FAMILIES = ("convert", "resize", "hog", "score", "colour", "band", "heat", "label",
+                      "refine")
 
 #: Overrides the user cache folder (the kernels go in its ``kernels/`` subfolder).
 CACHE_ENV_VAR = "FASTDET_CACHE_DIR"

@@ -78,9 +78,9 @@ def kernel_families(options):
             options.block_norm) == (8, 9, 2, "L2-Hys"):
         # The warm-up's shapes; other settings compile at their first frame.
         # With colour features the scales take one call for the three
-        # (_ScaleWork.band), which compiles the kernels it calls.
-        families += ["band"] if colour else ["hog", "score"]
-    elif colour:
+        # (_ScaleWork.band), which calls their compiled code.
+        families += ["hog", "score", "band"] if colour else ["hog", "score"]
+    if colour:
         families.append("colour")
     return tuple(families)
 

@@ -19,6 +19,15 @@ two frames at once from 1.44 to 1.34 ms a frame, 1.67x to 1.79x one thread.
 ``fastdet bench`` stays what it was.  It takes the vector cell kernel of the
 default options only (:meth:`BandScorer.fits`); other options keep the
 three calls.
+
+The band kernel calls the three kernels' own compiled code by its address
+(:mod:`fastdet.kernels.calls`), not the kernels themselves: called directly,
+Numba builds their code again inside it, which took the band kernel's
+compile from 0.25 s to 3.9 s against 2.7 s for the three on their own
+(Intel Xeon, 2026-12-03: a cold ``fastdet detect`` 5.34-5.42 s with the
+direct calls, 4.67-5.05 s by address; warm 0.43-0.46 against 0.38-0.40 s).
+The warm-up's "band" family is this kernel alone; the three are the
+families "hog", "score" and "colour".
 """
 
 from __future__ import annotations
@@ -26,8 +35,9 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from numba import njit
+from numba import njit, types
 
+from .calls import call_compiled, compiled_address
 from .clock import MONOTONIC_CLOCK, monotonic_ns
 from .colour import _colour_maps
 from .hog import _cell_rows_u8_fast
@@ -38,26 +48,24 @@ STAGES = ("cells", "colour_maps", "blocks_score")
 
 
 @njit(cache=True, nogil=True)
-def _features_and_scores(image, cell_first, cell_stop, bin_lut, cells_x, layout, cells, channels,
-                         colour_path, colour_image, lut, table, tile, factor, want_tiles,
-                         want_box, tiles, box, wrapped, phase_cells, per_phase, cpb_y, cpb_x,
-                         norm_code, eps, weights, step, out, first_row, stop_row, band_scores,
-                         spatial, spatial_weights, spatial_step_rows, spatial_step_cols,
-                         tile_sums, tiles_per_window, tiles_step, clock_id, stamps):
-    """``_cell_rows_u8_fast``, ``_colour_maps`` and ``_score_window_rows``, each
-    with its own arguments, in turn; ``stamps`` gets the time (ns) before each
-    and after the last."""
+def _features_and_scores(cells_kernel, cells_args, colour_kernel, colour_args, colour_result,
+                         windows_kernel, windows_args, clock_id, stamps):
+    """The cell, colour-map and window-score kernels at these addresses
+    (:func:`~fastdet.kernels.calls.compiled_address`), each with its own
+    arguments, in turn; ``stamps`` gets the time (ns) before each and after
+    the last."""
     stamps[0] = monotonic_ns(clock_id)
-    _cell_rows_u8_fast(image, cell_first, cell_stop, bin_lut, cells_x, layout, cells, channels)
+    call_compiled(cells_kernel, cells_args, None)
     stamps[1] = monotonic_ns(clock_id)
-    _colour_maps(colour_path, colour_image, lut, table, tile, factor, want_tiles, want_box,
-                 tiles, box)
+    call_compiled(colour_kernel, colour_args, colour_result)
     stamps[2] = monotonic_ns(clock_id)
-    _score_window_rows(wrapped, phase_cells, per_phase, cpb_y, cpb_x, norm_code, eps, weights,
-                       step, out, first_row, stop_row, band_scores, spatial, spatial_weights,
-                       spatial_step_rows, spatial_step_cols, tile_sums, tiles_per_window,
-                       tiles_step)
+    call_compiled(windows_kernel, windows_args, None)
     stamps[3] = monotonic_ns(clock_id)
+
+
+#: What ``_colour_maps`` returns (the tile-sum path it took), as a value of its type:
+#: the band kernel's types do not depend on compiling the kernels it calls.
+_COLOUR_RESULT = np.int64(0)
 
 
 class BandScorer:
@@ -81,6 +89,10 @@ class BandScorer:
         if not self.fits(cell_rows, colour_rows, windows):
             raise ValueError("these cells, colour maps or windows take calls of their own")
         self.cell_rows, self.colour_rows, self.windows = cell_rows, colour_rows, windows
+        # The three kernels' addresses for the calls' argument types, by the
+        # flags of the arrays that change from call to call (their dtypes,
+        # shapes and layouts the bound calls check).
+        self._compiled = {}
 
     @staticmethod
     def fits(cell_rows, colour_rows, windows):
@@ -124,11 +136,39 @@ class BandScorer:
         if cells is None or colour is None or windows is None:
             # An edge with nothing to do in some stage: the calls one by one.
             return self._one_by_one(cells, colour, windows)
+        key = (image.flags.writeable, image.flags.aligned, colour_image.flags.writeable,
+               colour_image.flags.aligned, scores.flags.writeable, scores.flags.aligned)
+        compiled = self._compiled.get(key)
+        if compiled is None:
+            compiled = self._compiled[key] = self.compile(cells[1], colour, windows)
         stamps = np.empty(4, np.int64)
-        _features_and_scores(*cells[1], *colour, *windows, MONOTONIC_CLOCK, stamps)
+        _features_and_scores(compiled[0], cells[1], compiled[1], colour, _COLOUR_RESULT,
+                             compiled[2], windows, MONOTONIC_CLOCK, stamps)
         start, cells_done, colour_done, end = stamps.tolist()
         return ((cells_done - start) * 1e-9, (colour_done - cells_done) * 1e-9,
                 (end - colour_done) * 1e-9)
+
+    @staticmethod
+    def compile(cells_args, colour_args, windows_args):
+        """Compile (or load) the three kernels for these arguments, and the band
+        kernel; returns the three kernels' addresses."""
+        cells, _ = compiled_address(_cell_rows_u8_fast, cells_args)
+        colour, colour_type = compiled_address(_colour_maps, colour_args)
+        windows, _ = compiled_address(_score_window_rows, windows_args)
+        # Where the CPU has one tile-sum path only, Numba types the result as
+        # that literal: a 64-bit integer all the same, as the call expects.
+        if not (isinstance(colour_type, types.Integer) and colour_type.bitwidth == 64):
+            raise TypeError(f"the colour maps kernel returns {colour_type}, not a 64-bit integer")
+        BandScorer.compile_band_kernel(cells_args, colour_args, windows_args)
+        return cells, colour, windows
+
+    @staticmethod
+    def compile_band_kernel(cells_args, colour_args, windows_args):
+        """Compile (or load) the band kernel alone for these arguments of the three
+        kernels (the warm-up's "band" family: it needs no kernel it calls)."""
+        _features_and_scores.compile(tuple(_features_and_scores.typeof_pyval(value) for value in (
+            0, cells_args, 0, colour_args, _COLOUR_RESULT, 0, windows_args, MONOTONIC_CLOCK,
+            np.empty(4, np.int64))))
 
     @staticmethod
     def _one_by_one(cells, colour, windows):

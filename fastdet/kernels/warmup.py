@@ -96,12 +96,12 @@ def _warm_band():
     windows = WindowRowScorer((1, 3), 64, 16,
                               (cells, 12, (2, 2), "L2-Hys", np.zeros((7, 7, 108), np.float32), 2),
                               (box, np.zeros((32, 32, 3), np.float32)), (tiles, 16))
-    if not BandScorer.fits(cell_rows, colour_rows, windows):
-        # No band kernel on this machine: the detector calls the three.
-        _warm_hog(), _warm_score(), _warm_colour()
-        return
-    BandScorer(cell_rows, colour_rows, windows)(image, image[:64], 0, 64, 0, 1,
-                                                np.zeros((1, 3), np.float32))
+    if BandScorer.fits(cell_rows, colour_rows, windows):
+        # The band kernel alone: the kernels it calls are families of their
+        # own, which the other compiling process may be compiling now.
+        BandScorer.compile_band_kernel(cell_rows.call(image, 0, 8)[1],
+                                       colour_rows.arguments(image[:64], 0, 64),
+                                       windows.arguments(np.zeros((1, 3), np.float32), 0, 1))
 
 
 def _warm_colour():
