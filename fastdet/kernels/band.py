@@ -68,6 +68,13 @@ def _features_and_scores(cells_kernel, cells_args, colour_kernel, colour_args, c
 _COLOUR_RESULT = np.int64(0)
 
 
+def band_kernel_signature(cells_args, colour_args, windows_args):
+    """The argument types of ``_features_and_scores`` for these arguments of the three kernels."""
+    return tuple(_features_and_scores.typeof_pyval(value) for value in (
+        0, cells_args, 0, colour_args, _COLOUR_RESULT, 0, windows_args, MONOTONIC_CLOCK,
+        np.empty(4, np.int64)))
+
+
 class BandScorer:
     """One scale's cell rows, colour maps and window scores, in one kernel call.
 
@@ -166,9 +173,8 @@ class BandScorer:
     def compile_band_kernel(cells_args, colour_args, windows_args):
         """Compile (or load) the band kernel alone for these arguments of the three
         kernels (the warm-up's "band" family: it needs no kernel it calls)."""
-        _features_and_scores.compile(tuple(_features_and_scores.typeof_pyval(value) for value in (
-            0, cells_args, 0, colour_args, _COLOUR_RESULT, 0, windows_args, MONOTONIC_CLOCK,
-            np.empty(4, np.int64))))
+        _features_and_scores.compile(band_kernel_signature(cells_args, colour_args,
+                                                           windows_args))
 
     @staticmethod
     def _one_by_one(cells, colour, windows):

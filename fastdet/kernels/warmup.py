@@ -78,14 +78,17 @@ def _warm_score():
                       tiles=(np.zeros((9, 9), np.float32), 16))
 
 
-def _warm_band():
-    from .band import BandScorer
+def band_scale_calls():
+    """A small scale's bound calls and their arguments, as the detector binds them
+    (:class:`fastdet.detector.scoring._ScaleWork`): ``(cell_rows, colour_rows,
+    windows, (cells_args, colour_args, windows_args))``.
+
+    64-pixel windows stepped by 16 pixels (2 cells), spatial boxes of 2
+    pixels, histogram tiles of 16; 12 cell columns, whole groups of cells.
+    """
     from .colour import ColourMapRows
     from .hog import PhaseCellRows, phase_layout_shape
     from .score import WindowRowScorer, phase_scoring_pad
-    # A scale as the detector binds one (fastdet.detector.scoring._ScaleWork):
-    # 64-pixel windows stepped by 16 pixels (2 cells), spatial boxes of 2
-    # pixels, histogram tiles of 16; 12 cell columns, whole groups of cells.
     image = np.ascontiguousarray(_frame_band(72, 96))
     pad = phase_scoring_pad(12, 2, (2, 2))
     cells = np.zeros(phase_layout_shape(9, 12, 3, 9, 2, pad), np.float32)
@@ -96,12 +99,18 @@ def _warm_band():
     windows = WindowRowScorer((1, 3), 64, 16,
                               (cells, 12, (2, 2), "L2-Hys", np.zeros((7, 7, 108), np.float32), 2),
                               (box, np.zeros((32, 32, 3), np.float32)), (tiles, 16))
+    arguments = (cell_rows.call(image, 0, 8)[1], colour_rows.arguments(image[:64], 0, 64),
+                 windows.arguments(np.zeros((1, 3), np.float32), 0, 1))
+    return cell_rows, colour_rows, windows, arguments
+
+
+def _warm_band():
+    from .band import BandScorer
+    cell_rows, colour_rows, windows, arguments = band_scale_calls()
     if BandScorer.fits(cell_rows, colour_rows, windows):
         # The band kernel alone: the kernels it calls are families of their
         # own, which the other compiling process may be compiling now.
-        BandScorer.compile_band_kernel(cell_rows.call(image, 0, 8)[1],
-                                       colour_rows.arguments(image[:64], 0, 64),
-                                       windows.arguments(np.zeros((1, 3), np.float32), 0, 1))
+        BandScorer.compile_band_kernel(*arguments)
 
 
 def _warm_colour():

@@ -14,6 +14,7 @@ from numba import njit
 
 from fastdet.kernels import band
 from fastdet.kernels.calls import call_compiled, compiled_address
+from fastdet.kernels.warmup import band_scale_calls
 
 
 @njit
@@ -77,11 +78,8 @@ def test_compiled_address_compiles_for_the_arguments_types():
 
 
 def test_the_band_kernel_holds_no_code_of_the_kernels_it_calls():
-    scale = band_scale()
-    cells, colour, windows = scale
-    signature = tuple(band._features_and_scores.typeof_pyval(value) for value in (
-        0, cells, 0, colour, band._COLOUR_RESULT, 0, windows, band.MONOTONIC_CLOCK,
-        np.empty(4, np.int64)))
+    # The signature the warm-up's "band" family compiles.
+    signature = band.band_kernel_signature(*band_scale_calls()[3])
     # The same source compiled afresh (not from the cache, which keeps no IR).
     fresh = njit(nogil=True)(band._features_and_scores.py_func)
     fresh.compile(signature)
@@ -91,22 +89,3 @@ def test_the_band_kernel_holds_no_code_of_the_kernels_it_calls():
         assert not any(callee in line for line in defined), callee
     # The three calls are there, as calls through pointers.
     assert llvm.count("inttoptr") >= 3
-
-
-def band_scale():
-    """The three kernels' arguments of a small scale, as the warm-up binds them."""
-    from fastdet.kernels.colour import ColourMapRows
-    from fastdet.kernels.hog import PhaseCellRows, phase_layout_shape
-    from fastdet.kernels.score import WindowRowScorer, phase_scoring_pad
-    image = np.random.default_rng(1).integers(0, 256, (72, 96, 3), dtype=np.uint8)
-    pad = phase_scoring_pad(12, 2, (2, 2))
-    cells = np.zeros(phase_layout_shape(9, 12, 3, 9, 2, pad), np.float32)
-    cell_rows = PhaseCellRows(image.shape, (8, 8), 9, cells, 2, pad)
-    lut = np.ones((3, 256), np.float32)
-    tiles, box = np.empty((4, 6), np.float32), np.empty((32, 48, 3), np.float32)
-    colour_rows = ColourMapRows((64, 96, 3), lut, 16, 2, (tiles, box))
-    windows = WindowRowScorer((1, 3), 64, 16,
-                              (cells, 12, (2, 2), "L2-Hys", np.zeros((7, 7, 108), np.float32), 2),
-                              (box, np.zeros((32, 32, 3), np.float32)), (tiles, 16))
-    return (cell_rows.call(image, 0, 8)[1], colour_rows.arguments(image[:64], 0, 64),
-            windows.arguments(np.zeros((1, 3), np.float32), 0, 1))
