@@ -46,6 +46,13 @@ def naive_heat(boxes, weights, height, width):
     return heat.astype(np.float32)
 
 
+def naive_windows_above(scores, threshold, boxes, scale_index):
+    """Boxes, scores and scales of the windows scoring above a Python float
+    ``threshold``, as NumPy compares a float32 array with it."""
+    hit = np.flatnonzero(scores > threshold)
+    return boxes[hit], scores[hit], scale_index[hit]
+
+
 def naive_component_boxes(labels, count):
     """Reference for ``fastdet.kernels.label.component_boxes``.
 

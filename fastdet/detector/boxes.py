@@ -46,11 +46,17 @@ class BoxFinder:
     def heat_weights(self, hits, plans):
         """Heat each hit adds, per ``heat.weighting`` (``plans``: the frame's scale plans)."""
         weighting = self.config.heat.weighting
-        if weighting == "count":
-            return np.ones(len(hits.scores), dtype=np.float32)
-        weights = np.ones(len(hits.scores), dtype=np.float32)
         if weighting in ("margin", "margin_area"):
-            weights = (hits.scores - self.config.search.decision_threshold).astype(np.float32)
+            threshold = self.config.search.decision_threshold
+            if hits.scores.dtype == np.float32:
+                # What NumPy computes for a Python float, in one call (each
+                # NumPy call right after a frame's search costs 10-30 us of
+                # cold caches).
+                weights = hits.scores - np.float32(threshold)
+            else:
+                weights = (hits.scores - threshold).astype(np.float32)
+        else:
+            weights = np.ones(len(hits.scores), dtype=np.float32)
         if weighting in ("area", "margin_area") and len(hits.scores):
             per_scale = np.array([plan.heat_weight for plan in plans], dtype=np.float32)
             weights = weights * per_scale[hits.scale_index]

@@ -54,7 +54,7 @@ import numpy as np
 from .alloc import empty, zeros
 
 __all__ = ["accumulate_heat", "accumulate_heat_into", "box_heat_region", "decay_heat",
-           "heat_cells"]
+           "heat_cells", "windows_above"]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -291,6 +291,54 @@ def accumulate_heat(boxes, weights, height, width):
     heat = empty((height, width), dtype=np.float32)
     _paint(heat, row_starts, col_starts, cells)
     return heat
+
+
+@numba.njit(cache=True, nogil=True)
+def windows_above(scores, threshold, boxes, scale_index):
+    """The windows whose score exceeds a threshold: their boxes, scores and scales.
+
+    The same arrays as ``hit = np.flatnonzero(scores > threshold)`` and
+    ``boxes[hit], scores[hit], scale_index[hit]``, in one call: right after
+    a frame's search those five NumPy calls found their code and data out of
+    cache and took 60-90 us a frame, the kernel 25 us (AMD EPYC Zen 4).
+
+    Parameters
+    ----------
+    scores : numpy.ndarray
+        float32 array ``(N,)``.
+    threshold : numpy.float32
+        Compared in float32, as NumPy compares a float32 array with a Python
+        float.
+    boxes : numpy.ndarray
+        int32 array ``(N, 4)``.
+    scale_index : numpy.ndarray
+        int64 array ``(N,)``.
+
+    Returns
+    -------
+    boxes, scores, scale_index : numpy.ndarray
+        The rows of the windows above the threshold, in window order.
+    """
+    n_windows = scores.shape[0]
+    if boxes.shape[0] != n_windows or boxes.shape[1] != 4 or scale_index.shape[0] != n_windows:
+        raise ValueError("scores, boxes (N, 4) and scale_index must have one row per window")
+    threshold = np.float32(threshold)
+    count = 0
+    for i in range(n_windows):
+        if scores[i] > threshold:
+            count += 1
+    hit_boxes = empty((count, 4), dtype=np.int32)
+    hit_scores = empty(count, dtype=np.float32)
+    hit_scales = empty(count, dtype=np.int64)
+    k = 0
+    for i in range(n_windows):
+        if scores[i] > threshold:
+            for side in range(4):
+                hit_boxes[k, side] = boxes[i, side]
+            hit_scores[k] = scores[i]
+            hit_scales[k] = scale_index[i]
+            k += 1
+    return hit_boxes, hit_scores, hit_scales
 
 
 @numba.njit(cache=True, nogil=True)

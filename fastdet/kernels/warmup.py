@@ -121,8 +121,9 @@ def _warm_colour():
 
 
 def _warm_heat():
-    from .heat import box_heat_region
+    from .heat import box_heat_region, windows_above
     boxes = np.array([[2, 2, 10, 10], [6, 4, 14, 12]], np.int32)
+    windows_above(np.ones(2, np.float32), np.float32(0.5), boxes, np.zeros(2, np.int64))
     box_heat_region(boxes, np.ones(2, np.float32), 32, 16)
 
 

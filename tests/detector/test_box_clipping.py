@@ -1,16 +1,22 @@
-"""Rounding and clipping of refined boxes, and the box filter, on the few boxes of a frame.
+"""Rounding and clipping of refined boxes, the box filter and the heat weights, on the few
+boxes of a frame.
 
-Both run in plain Python per box (cheaper than NumPy on a handful of rows);
-they must give what the vectorised NumPy rules give, halves rounded to even.
+Clipping and filtering run in plain Python per box (cheaper than NumPy on a
+handful of rows), the weights in as few NumPy calls as each rule needs; all
+must give what the plain NumPy rules give (halves rounded to even, weights bit
+for bit).
 """
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from fastdet.detector.boxes import BoxFinder, _clipped
-from fastdet.detector.config import BoxConfig, DetectorConfig
+from fastdet.detector.config import BoxConfig, DetectorConfig, HeatConfig, SearchConfig
+from fastdet.detector.scoring import Hits
 
 
 def numpy_clipped(boxes, frame_size):
@@ -57,3 +63,31 @@ def test_box_filter_matches_the_numpy_rule(frame_size):
     np.testing.assert_array_equal(kept, expected)
     assert 0 < kept.sum() < len(boxes)
     assert finder.box_filter(np.zeros((0, 4), np.int32), frame_size).shape == (0,)
+
+
+def numpy_heat_weights(hits, plans, weighting, threshold):
+    """The heat weights as the NumPy expressions of the heat's definition give them."""
+    weights = np.ones(len(hits.scores), dtype=np.float32)
+    if weighting in ("margin", "margin_area"):
+        weights = (hits.scores - threshold).astype(np.float32)
+    if weighting in ("area", "margin_area") and len(hits.scores):
+        per_scale = np.array([plan.heat_weight for plan in plans], dtype=np.float32)
+        weights = weights * per_scale[hits.scale_index]
+    return weights
+
+
+@pytest.mark.parametrize("weighting", ["count", "area", "margin", "margin_area"])
+@pytest.mark.parametrize("threshold", [-0.5, 0.1, 0.3])
+@pytest.mark.parametrize("score_dtype", [np.float32, np.float64])
+def test_heat_weights_match_numpy(weighting, threshold, score_dtype):
+    rng = np.random.default_rng(7)
+    count = 40
+    scores = rng.normal(0.5, 1.0, count).astype(score_dtype)
+    hits = Hits(np.zeros((count, 4), np.int32), scores, rng.integers(0, 3, count), 800)
+    plans = [SimpleNamespace(heat_weight=w) for w in (0.25, 1.0, 2.5)]
+    config = DetectorConfig(search=SearchConfig(decision_threshold=threshold),
+                            heat=HeatConfig(weighting=weighting))
+    weights = BoxFinder(config).heat_weights(hits, plans)
+    expected = numpy_heat_weights(hits, plans, weighting, threshold)
+    assert weights.dtype == np.float32
+    np.testing.assert_array_equal(weights.view(np.uint32), expected.view(np.uint32))

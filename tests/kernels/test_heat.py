@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fastdet.kernels.heat import accumulate_heat, accumulate_heat_into, decay_heat
-from naive import naive_heat
+from naive import naive_heat, naive_windows_above
 
 
 def assert_identical(actual, expected):
@@ -134,7 +134,7 @@ def test_mismatched_weights_raise():
 
 # -- the cell grid ---------------------------------------------------------------
 
-from fastdet.kernels.heat import box_heat_region, heat_cells  # noqa: E402
+from fastdet.kernels.heat import box_heat_region, heat_cells, windows_above  # noqa: E402
 
 
 def assert_same_bits(actual, expected):
@@ -268,6 +268,48 @@ def test_box_heat_region_edge_cases():
         box_heat_region(np.array([[20, 0, 30, 5]], np.int32), np.ones(1, np.float32), 9, 9)
     with pytest.raises(ValueError):
         box_heat_region(np.zeros((2, 4), np.int32), np.ones(3, np.float32), 9, 9)
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("n_windows", [0, 1, 7, 815])
+def test_windows_above_matches_numpy(seed, n_windows):
+    rng = np.random.default_rng(300 + seed)
+    scores = rng.normal(-1.0, 1.5, n_windows).astype(np.float32)
+    # Scores on the threshold and one float32 step either side of it.
+    threshold = float(rng.choice([-0.5, 0.1, 1.3]))
+    near = np.float32(threshold)
+    picks = rng.integers(0, max(n_windows, 1), min(n_windows, 6))
+    scores[picks[:2]] = near
+    scores[picks[2:4]] = np.nextafter(near, np.float32(np.inf))
+    scores[picks[4:]] = np.nextafter(near, np.float32(-np.inf))
+    boxes = rng.integers(-50, 1300, (n_windows, 4)).astype(np.int32)
+    scale_index = rng.integers(0, 5, n_windows).astype(np.int64)
+    got = windows_above(scores, np.float32(threshold), boxes, scale_index)
+    expected = naive_windows_above(scores, threshold, boxes, scale_index)
+    for mine, theirs in zip(got, expected):
+        assert_identical(mine, theirs)
+    assert got[0].flags.c_contiguous
+
+
+def test_windows_above_threshold_in_float32():
+    # 0.1 is not a float32: the comparison is with float32(0.1), as NumPy's.
+    scores = np.array([np.float32(0.1), np.nextafter(np.float32(0.1), np.float32(1))],
+                      np.float32)
+    boxes = np.arange(8, dtype=np.int32).reshape(2, 4)
+    got_boxes, got_scores, got_scales = windows_above(scores, np.float32(0.1), boxes,
+                                                      np.arange(2, dtype=np.int64))
+    assert_identical(got_boxes, boxes[1:])
+    assert_identical(got_scales, np.array([1], np.int64))
+    assert (scores > 0.1).tolist() == [False, True]
+
+
+def test_windows_above_refuses_mismatched_rows():
+    with pytest.raises(ValueError):
+        windows_above(np.zeros(3, np.float32), np.float32(0), np.zeros((2, 4), np.int32),
+                      np.zeros(3, np.int64))
+    with pytest.raises(ValueError):
+        windows_above(np.zeros(2, np.float32), np.float32(0), np.zeros((2, 4), np.int32),
+                      np.zeros(3, np.int64))
 
 
 @pytest.mark.parametrize("shape, region, offset", [
