@@ -9,6 +9,7 @@ its path inside that folder, and a listed video the path as the list writes it
 from __future__ import annotations
 
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
@@ -97,6 +98,10 @@ def _expand(path, exclude, listed_by):
     if path.is_dir():
         return [VideoInput(file, file.relative_to(resolved).as_posix())
                 for file in _videos_in(resolved, exclude)]
+    if not _regular_or_dangling(path):
+        # Hashing a FIFO for the manifest would wait for a writer for good.
+        raise InputError(f"{path}{where} is not a regular file (a FIFO, socket or device): "
+                         "a batch reads video files")
     if is_video_name(path) or listed_by is not None:
         # A listed file is taken for a video whatever its suffix: the list says so.
         return [VideoInput(resolved, path.name)]
@@ -117,9 +122,20 @@ def _videos_in(folder, exclude):
         root = Path(root)
         dirs[:] = sorted(d for d in dirs if not d.startswith(".")
                          and (exclude is None or (root / d).resolve() != exclude))
+        # FIFOs, sockets and devices with a video's name are no videos to take.
         videos += [root / name for name in sorted(files)
-                   if not name.startswith(".") and is_video_name(name)]
+                   if not name.startswith(".") and is_video_name(name)
+                   and _regular_or_dangling(root / name)]
     return videos
+
+
+def _regular_or_dangling(path):
+    """Whether ``path`` is a regular file or a link to nothing (which then fails
+    alone, as a video that cannot be read)."""
+    try:
+        return stat.S_ISREG(os.stat(path).st_mode)
+    except OSError:
+        return True
 
 
 def _read_list(path, exclude):

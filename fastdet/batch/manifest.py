@@ -12,7 +12,9 @@ with ``"status": "failed"`` and a one-line ``"reason"`` for a video that could
 not be processed.  Records are appended (and flushed to disk) as videos
 finish, so an interrupted batch keeps everything it completed; the last
 record of a video wins, a torn last line is ignored, and the end of a run
-rewrites the file with one record per video.
+rewrites the file with one record per video.  So is any line that is not a
+record as this module writes them (not UTF-8, not JSON, a field missing or
+of another type: an edited or foreign file): its video is then processed again.
 """
 
 from __future__ import annotations
@@ -26,6 +28,12 @@ from ..files.atomic import atomic_path
 
 MANIFEST_NAME = "manifest.jsonl"
 _CHUNK = 1 << 20
+#: The statuses a record can have.
+STATUSES = ("done", "failed")
+#: Fields a re-run or the report reads as text, and as numbers (each may be absent).
+_TEXT_FIELDS = ("input", "sha256", "model_sha256", "config_sha256", "reason")
+_NUMBER_FIELDS = ("size", "mtime_ns", "frames", "vehicles", "detections", "seconds", "fps",
+                  "segments")
 
 
 def file_sha256(path):
@@ -78,6 +86,24 @@ def is_up_to_date(record, fingerprint, settings, out_dir):
     return bool(outputs) and all((Path(out_dir) / rel).is_file() for rel in outputs.values())
 
 
+def is_record(value):
+    """Whether a parsed manifest line is a record as :class:`Manifest` writes them:
+    a relative path and a status, and every field a re-run or the report reads
+    of its type (text, numbers, outputs as relative paths)."""
+    if not (isinstance(value, dict) and isinstance(value.get("relative"), str)
+            and value.get("status") in STATUSES):
+        return False
+    outputs = value.get("outputs", {})
+    if not (isinstance(outputs, dict) and all(isinstance(path, str) for path in outputs.values())):
+        return False
+    return (all(isinstance(value.get(key, ""), str) for key in _TEXT_FIELDS)
+            and all(_is_number(value.get(key)) for key in _NUMBER_FIELDS))
+
+
+def _is_number(value):
+    return value is None or (isinstance(value, (int, float)) and not isinstance(value, bool))
+
+
 class Manifest:
     """The records of an output folder, keyed by the videos' relative paths.
 
@@ -90,13 +116,13 @@ class Manifest:
         self.path = Path(out_dir) / MANIFEST_NAME
         self.records = {}
         if self.path.is_file():
-            with open(self.path, encoding="utf-8") as handle:
+            with open(self.path, "rb") as handle:
                 for line in handle:
                     try:
-                        record = json.loads(line)
-                    except json.JSONDecodeError:
-                        continue          # a line torn by a crash
-                    if isinstance(record, dict) and isinstance(record.get("relative"), str):
+                        record = json.loads(line.decode("utf-8"))
+                    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+                        continue          # a line torn by a crash, or not written by fastdet
+                    if is_record(record):
                         self.records[record["relative"]] = record
 
     def get(self, relative):

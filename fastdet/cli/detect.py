@@ -6,7 +6,8 @@ import json
 import time
 from pathlib import Path
 
-from ..files.atomic import output_folder, output_in_folder, refuse_overwriting_inputs
+from ..errors import InputError
+from ..files.atomic import output_folder, output_in_folder, refuse_overwriting_inputs, same_file
 from ..files.images import read_image, write_image
 from .common import (add_horizon_option, add_model_options, compile_notice, make_detector,
                      resolve_images_horizon)
@@ -57,9 +58,15 @@ def _drawn_image_paths(images, out_dir):
 
     The names stay inside the folder whatever the inputs are called, and
     none may be an input: ``--out-dir`` the images' own folder would replace them.
+    Nor may two images of one name from different folders share a drawing.
     """
     out_dir = output_folder(out_dir)
     targets = [output_in_folder(out_dir, Path(name).name) for name in images]
-    for target in targets:
+    drawn_from = {}
+    for name, target in zip(images, targets):
         refuse_overwriting_inputs(target, images)
+        first = drawn_from.setdefault(target, name)
+        if first != name and same_file(name, [first]) is None:
+            raise InputError(f"{first} and {name} would both be drawn to {target}: rename one "
+                             "or detect them in separate runs")
     return targets

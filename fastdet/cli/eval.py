@@ -51,6 +51,8 @@ def cmd_eval(args):
     from ..evaluation.matching import DIFFICULT_COVER
     from ..evaluation.metrics import evaluate
 
+    if not 0 < args.iou <= 1:            # before any work; NaN too
+        raise InputError(f"--iou must be in (0, 1], got {args.iou}")
     annotations = select_split(load_annotations(args.annotations), load_splits(args.annotations),
                                args.split)
     source = Path(args.source)

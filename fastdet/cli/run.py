@@ -15,13 +15,14 @@ error).
 
 from __future__ import annotations
 
+import math
 import re
 import sys
 from pathlib import Path
 from urllib.parse import unquote, urlparse
 
 from ..errors import InputError
-from ..files.atomic import STDOUT, output_in_folder, refuse_overwriting_inputs
+from ..files.atomic import STDOUT, output_in_folder
 from ..video.detection_files import FORMATS
 from .common import (add_encoder_options, add_horizon_option, add_schedule_options,
                      compile_notice, make_pipeline, message_stream, track_config)
@@ -116,33 +117,16 @@ def default_output(video):
     never a ``..`` or a separator from a URL, and a symbolic link already
     standing under that name is refused rather than followed.
     """
-    if _is_file(video):
-        video = Path(video)
-        return output_in_folder(video.parent, f"{video.stem}_fastdet.mp4")
+    from ..video.source import source_file
+
+    path = source_file(video)
+    if path is not None:
+        return output_in_folder(path.parent, f"{path.stem}_fastdet.mp4")
     # The last part of the URL's path, decoded, in plain characters, never hidden.
     stem = re.sub(r"[^\w.-]", "_", Path(unquote(urlparse(str(video)).path)).stem).lstrip(".")
     stem = stem or "stream"
     stem = f"camera{stem}" if stem.isdigit() else stem
     return output_in_folder(Path("."), f"{stem}_fastdet.mp4")
-
-
-def _is_file(video):
-    text = str(video)
-    return not (text.isdigit() or text.startswith("/dev/video") or "://" in text)
-
-
-def _same_file(a, b):
-    return Path(a).resolve() == Path(b).resolve()
-
-
-def _check_outputs(args, out, detections):
-    """Refuse outputs that would replace an input or each other, before any work."""
-    inputs = [args.video if _is_file(args.video) else None, args.model, args.config]
-    for output in (out, detections):
-        refuse_overwriting_inputs(output, inputs)
-    if out is not None and detections is not None and (
-            str(out) == str(detections) == STDOUT or _same_file(out, detections)):
-        raise InputError(f"cannot write {out}: --out and --detections name the same file")
 
 
 def _plan(args, track):
@@ -177,7 +161,7 @@ def cmd_run(args):
     RunInterrupted
         After Ctrl-C or SIGTERM, once both outputs hold every frame processed so far.
     """
-    from ..video.run import RunInterrupted, process_video
+    from ..video.run import RunInterrupted, process_video, refuse_clashing_outputs
     from ..video.source import VideoSource
 
     verbose = getattr(args, "verbose", False)
@@ -185,9 +169,10 @@ def cmd_run(args):
     announce = out is None and detections_path is None
     if announce:
         out = args.out = default_output(args.video)
-    _check_outputs(args, out, detections_path)
-    if args.timeout <= 0:
-        raise InputError(f"--timeout must be positive, got {args.timeout}")
+    # Before any work: no output may replace an input or the other output.
+    refuse_clashing_outputs(args.video, out, detections_path, [args.model, args.config])
+    if not 0 < args.timeout < math.inf:     # NaN too
+        raise InputError(f"--timeout must be a positive number of seconds, got {args.timeout}")
     # Problems with the input, then with the model or config, then with the
     # outputs: each is reported before any output file exists.
     plan = _plan(args, track_config(args))

@@ -64,9 +64,17 @@ def _is_number(value):
             and math.isfinite(value))
 
 
+#: Largest size of any number of the detector's settings: pixels, thresholds
+#: and coefficients are all far smaller, and a larger one (1e19, 1e308) passed
+#: the checks and then overflowed in the kernels' integer and float32 arguments.
+MAX_SETTING = 1e9
+
+
 def _number(name, value, kind="a finite number"):
     if not _is_number(value):
         raise ConfigError(f"{name} must be {kind}, got {value!r}")
+    if abs(value) > MAX_SETTING:
+        raise ConfigError(f"{name} must be at most {MAX_SETTING:g} in size, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -246,7 +254,8 @@ class SearchConfig:
         if not self.scales and not self.windows:
             raise ConfigError("search.windows (or search.scales) must list at least one size")
         size = self.reference_size
-        if len(size) != 2 or not all(isinstance(v, int) and v > 0 for v in size):
+        if len(size) != 2 or not all(isinstance(v, int) and not isinstance(v, bool)
+                                     and 0 < v <= MAX_SETTING for v in size):
             raise ConfigError(f"search.reference_size must be [width, height], got {list(size)!r}")
         _number("search.decision_threshold", self.decision_threshold)
         if self.horizon != AUTO:
@@ -254,8 +263,7 @@ class SearchConfig:
             if not 0 < self.horizon < 1:
                 raise ConfigError(f"search.horizon must be in (0, 1) (a fraction of the frame "
                                   f"height) or \"{AUTO}\", got {self.horizon!r}")
-        if (len(self.band) != 2 or not all(isinstance(v, (int, float)) and math.isfinite(v)
-                                           for v in self.band)
+        if (len(self.band) != 2 or not all(_is_number(v) for v in self.band)
                 or not self.band[0] <= self.band[1]):
             raise ConfigError(f"search.band must be [low, high] with low <= high, "
                               f"got {list(self.band)!r}")
@@ -385,12 +393,11 @@ class BoxConfig:
     def __post_init__(self):
         object.__setattr__(self, "refine", tuple(tuple(row) for row in self.refine))
         if self.refine and (len(self.refine) != 4 or any(
-                len(row) != N_FEATURES or not all(isinstance(v, (int, float))
-                                                  and not isinstance(v, bool)
-                                                  and math.isfinite(v) for v in row)
+                len(row) != N_FEATURES or not all(_is_number(v) and abs(v) <= MAX_SETTING
+                                                  for v in row)
                 for row in self.refine)):
             raise ConfigError(f"boxes.refine must be 4 rows of {N_FEATURES} numbers "
-                              f"(or empty)")
+                              f"of at most {MAX_SETTING:g} in size (or empty)")
         for name in ("min_size", "min_aspect", "max_aspect", "width_scale", "height_scale",
                      "center_dy"):
             _number(f"boxes.{name}", getattr(self, name))

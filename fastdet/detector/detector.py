@@ -9,6 +9,8 @@ per-window work happens in the Numba kernels those parts call.
 
 from __future__ import annotations
 
+import numbers
+import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -18,11 +20,11 @@ import cv2
 import numba
 import numpy as np
 
-from ..errors import InputError
+from ..errors import ConfigError, InputError
 from ..kernels.heat import windows_above
 from ..kernels.warmup import warm
 from .boxes import BoxFinder
-from .config import DetectorConfig
+from .config import DetectorConfig, load_config
 from .frames import as_bgr_frame
 from .horizon import estimate_horizon, searched_at
 from .model import Model, load_model
@@ -87,6 +89,18 @@ class _TaskQueue:
 PLANNED_SIZES = 16
 
 
+def _as_config(config):
+    """``config`` as a :class:`DetectorConfig`: a TOML file loaded, ``None`` the defaults."""
+    if config is None:
+        return DetectorConfig()
+    if isinstance(config, (str, os.PathLike)):
+        return load_config(config)
+    if not isinstance(config, DetectorConfig):
+        raise ConfigError(f"config must be a DetectorConfig or a TOML file, got "
+                          f"{type(config).__name__}")
+    return config
+
+
 def _load_kernels(families):
     """The preload thread: a failure here only means each kernel loads (and
     reports any error) at its first call instead."""
@@ -104,8 +118,9 @@ class Detector:
     model : Model or str or Path, optional
         A :class:`~fastdet.detector.model.Model`, a model file, or ``None`` for the
         bundled default.
-    config : DetectorConfig, optional
-        Search, heat and box settings; defaults built in.
+    config : DetectorConfig or str or Path, optional
+        Search, heat and box settings, or a TOML file of them (see
+        :func:`~fastdet.detector.config.load_config`); defaults built in.
     threads : int, optional
         Threads per frame.  ``None`` keeps Numba's setting
         (``NUMBA_NUM_THREADS``, all cores by default); 1 runs everything on
@@ -163,6 +178,8 @@ class Detector:
             model = load_model(model)
         self.model = model
         if threads is not None:
+            if isinstance(threads, bool) or not isinstance(threads, numbers.Integral):
+                raise InputError(f"threads must be a whole number, got {threads!r}")
             if threads < 1:
                 raise InputError(f"threads must be at least 1, got {threads}")
             threads = min(int(threads), numba.config.NUMBA_NUM_THREADS)
@@ -173,7 +190,7 @@ class Detector:
         # One detection at a time per detector: the work arrays are reused.
         self._detecting = threading.RLock()
         self.scorer = ScaleScorer(model)
-        self.box_finder = BoxFinder(config or DetectorConfig())
+        self.box_finder = BoxFinder(_as_config(config))
         self._requested_config = self.box_finder.config
         self._plans = {}
         self._bands = {}
@@ -202,6 +219,7 @@ class Detector:
 
     @config.setter
     def config(self, config):
+        config = _as_config(config)
         self._requested_config = config
         self._search_with(config)
 

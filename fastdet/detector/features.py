@@ -94,12 +94,17 @@ class FeatureOptions:
 
     def validate(self):
         """Raise :class:`~fastdet.errors.ConfigError` naming the first invalid option."""
-        if self.color_space not in COLOR_CODES:
+        # Type checks first: a model's metadata is any JSON (a list is unhashable,
+        # the string "false" is true).
+        if not isinstance(self.color_space, str) or self.color_space not in COLOR_CODES:
             raise ConfigError(f"color_space must be one of {sorted(COLOR_CODES)}, "
                              f"got {self.color_space!r}")
+        if not isinstance(self.use_hog, bool):
+            raise ConfigError(f"use_hog must be true or false, got {self.use_hog!r}")
         channel = self.hog_channel
         if isinstance(channel, bool) or not (
-                channel in HOG_CHANNEL_NAMES or (isinstance(channel, int) and 0 <= channel <= 2)):
+                (isinstance(channel, str) and channel in HOG_CHANNEL_NAMES)
+                or (isinstance(channel, int) and 0 <= channel <= 2)):
             raise ConfigError(f"hog_channel must be 'all', 'gray' or 0-2, got {channel!r}")
         for name in ("orientations", "pixels_per_cell", "cells_per_block", "spatial_size",
                      "hist_bins"):
@@ -115,7 +120,7 @@ class FeatureOptions:
             if not 1 <= self.cells_per_block <= WINDOW // self.pixels_per_cell:
                 raise ConfigError(f"cells_per_block must be in 1..{WINDOW // self.pixels_per_cell}, "
                                  f"got {self.cells_per_block}")
-            if self.block_norm not in NORM_CODES:
+            if not isinstance(self.block_norm, str) or self.block_norm not in NORM_CODES:
                 raise ConfigError(f"block_norm must be one of {sorted(NORM_CODES)}, "
                                  f"got {self.block_norm!r}")
         if self.spatial_size and WINDOW % self.spatial_size:

@@ -134,6 +134,9 @@ def hog(image, orientations=9, pixels_per_cell=(8, 8), cells_per_block=(2, 2),
         image = np.moveaxis(image, axes[0], -1)
     if (image.ndim - 1 if multichannel else image.ndim) != 2:
         raise ValueError(_TWO_SPATIAL_DIMS)
+    if multichannel and image.shape[-1] == 0:
+        # scikit-image's own error (an empty argmax); the kernels would read no channel.
+        raise ValueError("attempt to get argmax of an empty sequence")
     if block_norm not in NORM_CODES:
         raise ValueError(_INVALID_NORM)
     cell_rows, cell_cols = _pair(pixels_per_cell, "pixels_per_cell")

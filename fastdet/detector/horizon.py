@@ -42,6 +42,8 @@ ROAD_FROM = 0.45
 #: Segments this steep (|dy / dx|) can be lane lines: flatter ones are road
 #: edges across the view, car roofs and bumpers; steeper ones poles and car sides.
 LANE_SLOPES = (0.3, 3.0)
+#: Frames smaller than this on a side show no lane lines: they have no horizon.
+MIN_SIDE = 16
 #: Crossings are grouped into bins of this many frame heights.
 BIN = 0.01
 #: A video's estimate needs crossings in at least this share of its frames.
@@ -100,12 +102,15 @@ def frame_horizon(frame):
     Returns
     -------
     float or None
-        ``None`` when no pair of lane-like segments crosses at a plausible row.
+        ``None`` when no pair of lane-like segments crosses at a plausible row,
+        or the frame is under :data:`MIN_SIDE` pixels on a side (too small to
+        show lane lines: a folder of images may hold such a thumbnail).
     """
     frame = np.asarray(frame)
-    if frame.ndim not in (2, 3) or frame.dtype != np.uint8 or min(frame.shape[:2]) < 16:
-        raise ValueError(f"expected a uint8 image of at least 16x16 pixels, got "
-                         f"{frame.dtype} {frame.shape}")
+    if frame.ndim not in (2, 3) or frame.dtype != np.uint8:
+        raise ValueError(f"expected a uint8 image, got {frame.dtype} {frame.shape}")
+    if min(frame.shape[:2]) < MIN_SIDE:
+        return None
     grey = frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
     height, width = grey.shape
     if height > ANALYSIS_ROWS:

@@ -137,7 +137,8 @@ def _parse_object(obj, where):
         raise InputError(f"{where} must be an object with a \"box\"")
     box = obj.get("box")
     if not isinstance(box, list) or len(box) != 4 or not all(_is_coordinate(v) for v in box):
-        raise InputError(f"{where}.box must be a list of 4 finite numbers, got {box!r}")
+        raise InputError(f"{where}.box must be a list of 4 finite numbers of at most "
+                         f"{MAX_COORDINATE:g} in size, got {box!r}")
     if not (box[2] > box[0] and box[3] > box[1]):
         raise InputError(f"{where}.box must have x2 > x1 and y2 > y1, got {box!r}")
     label = obj.get("label", "car")
@@ -153,12 +154,18 @@ def _parse_object(obj, where):
             "id": identity}
 
 
+#: Largest coordinate of a box: far beyond any frame, yet small enough that areas
+#: and overlaps stay finite (1e308 made them overflow, with NumPy's warnings).
+MAX_COORDINATE = 1e7
+
+
 def _is_coordinate(value):
-    """A finite number that fits a float (bool, an int subclass, is certainly a mistake)."""
+    """A finite number of at most :data:`MAX_COORDINATE` in size (bool, an int
+    subclass, is certainly a mistake)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return False
     try:
-        return math.isfinite(value)
+        return math.isfinite(value) and abs(value) <= MAX_COORDINATE
     except OverflowError:  # an int too large for a float
         return False
 

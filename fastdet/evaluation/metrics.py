@@ -176,8 +176,10 @@ def evaluate(results, annotations, iou_threshold=0.5, difficult_cover=DIFFICULT_
     InputError
         If ``results`` names images that have no annotations (they cannot be
         scored, and silently dropping them would flatter precision), or if
-        ``difficult_cover`` is not in (0, 1].
+        ``iou_threshold`` or ``difficult_cover`` is not in (0, 1].
     """
+    if not 0 < iou_threshold <= 1:       # NaN too
+        raise InputError(f"the match IoU (--iou) must be in (0, 1], got {iou_threshold}")
     if difficult_cover is not None and not 0 < difficult_cover <= 1:
         # At 0 every false positive beside a difficult box would be ignored.
         raise InputError(f"difficult_cover must be in (0, 1] or None, got {difficult_cover!r}")

@@ -205,6 +205,9 @@ def _cell_histograms_parallel(image, ppc_y, ppc_x, nbins, merge_mode, cos_sin, b
 
 #: Integer gradients of uint8 images lie in [-255, 255] on both axes.
 _GRAD_SPAN = 511
+#: Most bins the uint8 paths take: the lookup table's 8-bit entries hold every bin
+#: and the mark ``nbins`` of a dropped pixel.  Above, uint8 images take the float64 path.
+LUT_MAX_BINS = 255
 
 
 def orientation_lut(nbins):
@@ -225,6 +228,8 @@ def orientation_lut(nbins):
         ``(gx, gy)``, or ``nbins`` for the rare angle that rounds to exactly
         180 degrees (scikit-image drops those pixels).
     """
+    if not 1 <= nbins <= LUT_MAX_BINS:
+        raise ValueError(f"an 8-bit orientation table holds 1..{LUT_MAX_BINS} bins, got {nbins}")
     g = np.arange(-255, 256, dtype=np.float64)
     gy, gx = np.meshgrid(g, g, indexing="ij")
     angle = np.arctan2(gy, gx) * (180 / np.pi) % 180
@@ -397,9 +402,10 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
         Image; each channel is treated independently unless
         ``merge_channels`` is set.  uint8 images take the fast exact paths
         (orientation bins from comparisons or a lookup table of all integer
-        gradients); float64 images are computed exactly as scikit-image
-        computes them (:mod:`fastdet.kernels.hog_float64`, serial) and give
-        float64 cells; other dtypes are converted to float32.
+        gradients; with more than :data:`LUT_MAX_BINS` bins the float64
+        path, the cells still float32); float64 images are computed exactly
+        as scikit-image computes them (:mod:`fastdet.kernels.hog_float64`,
+        serial) and give float64 cells; other dtypes are converted to float32.
     pixels_per_cell : tuple of int
         ``(ppc_y, ppc_x)``.
     nbins : int
@@ -443,6 +449,18 @@ def cell_histograms(image, pixels_per_cell, nbins, merge_channels=False, paralle
     # The kernels read rows as flat runs.
     image = np.ascontiguousarray(image)
     height, width, channels = image.shape
+    if image.dtype == np.uint8 and nbins > LUT_MAX_BINS:
+        # Past the table's 8-bit bins: the values scikit-image gives, as float32.
+        if rows is not None:
+            raise ValueError(f"rows: uint8 cells of at most {LUT_MAX_BINS} bins, got {nbins}")
+        cells = cell_histograms(image.astype(np.float64), pixels_per_cell, nbins,
+                                merge_channels).astype(np.float32)
+        if phase_step is not None:
+            cells = to_phase_layout(cells, int(phase_step), int(phase_pad))
+        if out is None:
+            return cells
+        _output(out, cells.shape)[...] = cells
+        return out
     out_channels = 1 if merge_channels else channels
     cells_y, cells_x = height // ppc_y, width // ppc_x
     shape = (cells_y, cells_x, out_channels, nbins)

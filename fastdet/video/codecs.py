@@ -17,3 +17,8 @@ CRF_RANGE = {"h264": (0, 51), "hevc": (0, 51), "av1": (0, 63), "vp9": (0, 63), "
 #: complaint about an unknown one straight to stderr, past FFmpeg's logging.
 NAMED_PRESETS = {codec: ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow",
                          "slower", "veryslow", "placebo") for codec in ("h264", "hevc")}
+#: Fewest pixels an encoder takes on each side of a picture.  SVT-AV1 (its
+#: version in the PyAV wheel) refuses sides under 4 on stderr, and with a side
+#: under 32 and the other over 64 (1280x16, 24x1280) it waits forever inside
+#: the encoder, signals and all: such sizes are refused before it opens.
+MIN_SIDE = {"av1": 32}

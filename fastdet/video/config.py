@@ -10,6 +10,12 @@ from ..detector.config import read_toml
 from ..errors import ConfigError
 
 HEAT_SMOOTHING = ("none", "exponential", "fir")
+#: Upper bounds of settings whose size is memory or pixels: beyond them a run
+#: ran out of memory or overflowed a kernel's arguments.  100 frames of heat
+#: are 4 s at 25 fps (and 350 MB at 1280x720).
+MAX_HEAT_FRAMES = 100
+MAX_BOX_FRAMES = 1000
+MAX_SEARCH_RADIUS = 10000.0
 
 
 # -- configuration ------------------------------------------------------------
@@ -92,8 +98,9 @@ class TrackConfig:
             raise ConfigError(f"track.heat_smoothing must be one of {', '.join(HEAT_SMOOTHING)}, "
                               f"got {self.heat_smoothing!r}")
         _fraction("heat_alpha", self.heat_alpha, allow_zero=False)
-        _integer("heat_frames", self.heat_frames, 1)
-        _integer("box_frames", self.box_frames, 1)
+        # Bounded: the FIR keeps heat_frames maps, each box its last box_frames.
+        _integer("heat_frames", self.heat_frames, 1, MAX_HEAT_FRAMES)
+        _integer("box_frames", self.box_frames, 1, MAX_BOX_FRAMES)
         _fraction("match_iou", self.match_iou, allow_zero=False)
         _integer("max_missed", self.max_missed, 0)
         if not isinstance(self.tracking, bool):
@@ -102,7 +109,7 @@ class TrackConfig:
         _fraction("min_patch_overlap", self.min_patch_overlap, allow_zero=True)
         _fraction("merge_overlap", self.merge_overlap, allow_zero=False)
         _integer("min_patch_pixels", self.min_patch_pixels, 1)
-        _number("search_radius", self.search_radius, 0)
+        _number("search_radius", self.search_radius, 0, MAX_SEARCH_RADIUS)
         _number("scene_change_threshold", self.scene_change_threshold, 0)
         _integer("thumbnail_factor", self.thumbnail_factor, 1, 256)
 
@@ -163,10 +170,11 @@ def load_track_config(path=None):
         raise ConfigError(f"{path}: {exc}") from None
 
 
-def _number(name, value, low):
+def _number(name, value, low, high=None):
     if (isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
-            or value < low):
-        raise ConfigError(f"track.{name} must be a finite number >= {low}, got {value!r}")
+            or value < low or (high is not None and value > high)):
+        bounds = f">= {low}" if high is None else f"in {low}..{high:g}"
+        raise ConfigError(f"track.{name} must be a finite number {bounds}, got {value!r}")
 
 
 def _integer(name, value, low, high=None):

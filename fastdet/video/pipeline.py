@@ -234,10 +234,13 @@ class VideoPipeline:
         (:meth:`fastdet.video.source.VideoSource.decoded_frames`).
         """
         period = self.config.search_period
-        due = self.searches_ahead(period) if period is not None and period > 1 else None
-        if due is None:
+        if self.config.tracking or period is None or period <= 1:
             return None
-        return functools.partial(_on_schedule, first + due.index(True), period)
+        # The first True of searches_ahead(period), without a list of ``period``
+        # entries (a period of 2**31 frames took minutes and gigabytes).
+        since = self._since_full
+        due = 0 if since is None else max(0, period - 1 - since)
+        return functools.partial(_on_schedule, first + due, period)
 
     def searches_ahead(self, count):
         """Whether each of the next ``count`` frames will be fully searched, or ``None``.

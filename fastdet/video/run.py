@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 import signal
 import threading
 import time
@@ -22,6 +23,7 @@ import numba
 from ..detector.config import DetectorConfig, load_config
 from ..detector.detector import Detector
 from ..errors import InputError
+from ..files.atomic import refuse_overwriting_inputs, same_file
 from .ahead import can_look_ahead
 from .config import TrackConfig, load_track_config
 from .detection_files import DetectionWriter
@@ -29,7 +31,7 @@ from .horizon import resolve_video_horizon
 from .memory import reuse_freed_frames
 from .pipeline import VideoPipeline
 from .sink import VideoSink
-from .source import DEFAULT_TIMEOUT, VideoSource
+from .source import DEFAULT_TIMEOUT, VideoSource, source_file
 from .stages import (QUEUE_FRAMES, Conveyor, StageTimes, ThreadPlan, decode, detect, encode,
                      plan_threads, report, warm_up_queue_frames)
 
@@ -187,6 +189,30 @@ def _settings(detector, config):
                      f"not {type(config).__name__}")
 
 
+def refuse_clashing_outputs(source, target, detections, inputs=()):
+    """Raise :class:`InputError` when the annotated video or the detections file
+    would replace the video read, one of ``inputs`` (files such as the model and
+    the config) or each other, before anything is opened.
+
+    Parameters
+    ----------
+    source : str, Path, int or VideoSource
+        As :func:`process_video` takes it (a camera or a URL replaces no file).
+    target, detections : str or Path or None
+        The outputs (``"-"`` for the detections: standard output).
+    inputs : sequence of str or Path or None
+        Other files the run reads.
+    """
+    read = [source_file(source), *inputs]
+    for output in (target, detections):
+        refuse_overwriting_inputs(output, read)
+    if target is not None and detections is not None and (
+            Path(target).resolve() == Path(detections).resolve()
+            or same_file(target, [detections]) is not None):
+        raise InputError(f"cannot write {target}: the video and the detections name the "
+                         "same file")
+
+
 def process_video(source, target=None, detector=None, config=None, callback=None, *,
                   detections=None, detections_format=None, start=0, end=None, warmup=0,
                   codec="h264", crf=None, preset=None, threads=None, realtime=False,
@@ -271,6 +297,10 @@ def process_video(source, target=None, detector=None, config=None, callback=None
     warmup = int(warmup)
     if warmup < 0:
         raise InputError(f"warmup must be >= 0, got {warmup}")
+    if callback is not None and not callable(callback):
+        raise InputError(f"callback must be callable, got {type(callback).__name__}")
+    refuse_clashing_outputs(source, target, detections,
+                            [config] if isinstance(config, (str, os.PathLike)) else [])
     cores = threads or numba.config.NUMBA_NUM_THREADS
     stats = RunStats()
     conveyor = Conveyor()

@@ -28,6 +28,7 @@ does not is moved just after the previous frame.
 
 from __future__ import annotations
 
+import numbers
 import os
 from fractions import Fraction
 
@@ -38,7 +39,7 @@ from av.video.reformatter import VideoReformatter
 
 from ..errors import InputError
 from ..files.atomic import StagedFile
-from .codecs import CRF_RANGE, DEFAULT_CRF, DEFAULT_PRESET, ENCODERS, NAMED_PRESETS
+from .codecs import CRF_RANGE, DEFAULT_CRF, DEFAULT_PRESET, ENCODERS, MIN_SIDE, NAMED_PRESETS
 from .frame_arrays import plane_view
 
 #: Containers by suffix; MP4 and QuickTime files get their index first.
@@ -76,6 +77,8 @@ def codec_options(codec, crf=None, preset=None, threads=1):
         raise InputError(f"this FFmpeg cannot encode {codec} ({ENCODERS[codec]} is missing)")
     crf = DEFAULT_CRF[codec] if crf is None else crf
     low, high = CRF_RANGE[codec]
+    if isinstance(crf, bool) or not isinstance(crf, numbers.Real):
+        raise InputError(f"{codec} quality (--crf) must be a number {low}-{high}, got {crf!r}")
     if not low <= crf <= high:
         # x264 would clamp silently; say so instead.
         raise InputError(f"{codec} quality (--crf) must be {low}-{high}, got {crf}")
@@ -94,6 +97,32 @@ def codec_options(codec, crf=None, preset=None, threads=1):
     if codec == "hevc":
         options["x265-params"] = f"log-level=error:pools={threads}:frame-threads={threads}"
     return options
+
+
+def _frame_rate(fps):
+    """``fps`` as the exact fraction the stream is given (1/1001 steps at most),
+    or an :class:`InputError` naming it."""
+    try:
+        if isinstance(fps, bool):
+            raise TypeError
+        rate = Fraction(fps).limit_denominator(1001000)
+    except (TypeError, ValueError, OverflowError):
+        rate = None
+    if rate is None or rate <= 0:
+        raise InputError(f"a video's frame rate must be a positive number, got {fps!r}")
+    return rate
+
+
+def _frame_size(size):
+    """``size`` as ``(width, height)`` of whole positive pixels, or an :class:`InputError`."""
+    try:
+        width, height = size
+        whole = int(width) == width and int(height) == height
+    except (TypeError, ValueError, OverflowError):
+        whole = False
+    if not whole or width < 1 or height < 1:
+        raise InputError(f"a video's size must be (width, height) in whole pixels, got {size!r}")
+    return int(width), int(height)
 
 
 def check_encoder(codec, crf=None, preset=None):
@@ -199,7 +228,13 @@ class VideoSink(StagedFile):
 
     def __init__(self, path, fps, size, codec="h264", crf=None, preset=None, threads=1,
                  time_base=None, colour=None):
+        # Checked before the temporary file exists.
+        rate, size = _frame_rate(fps), _frame_size(size)
         options = codec_options(codec, crf, preset, threads)
+        least = MIN_SIDE.get(codec, 1)
+        if min(even(size[0]), even(size[1])) < least:
+            raise InputError(f"the {codec} encoder needs at least {least} pixels on each side, "
+                             f"got {size[0]}x{size[1]} (choose another --codec)")
         super().__init__(path)
         streamed = str(path) == "-"
         container_format = "mp4" if streamed else CONTAINERS.get(self.path.suffix.lower())
@@ -214,8 +249,8 @@ class VideoSink(StagedFile):
                              "or .ts)")
         self.codec = codec
         self._crf, self._preset = crf, preset
-        self.size = (int(size[0]), int(size[1]))
-        self.rate = Fraction(fps).limit_denominator(1001000)
+        self.size = size
+        self.rate = rate
         self.time_base = Fraction(time_base) if time_base is not None else 1 / self.rate
         self.frames = 0
         self._last_pts = None
@@ -258,7 +293,7 @@ class VideoSink(StagedFile):
             context.open()  # fail now, before any frame, on a bad size or option
         except av.error.FFmpegError:
             raise ValueError(f"{_refusal(self.codec, self._crf, self._preset)} at "
-                             f"{stream.width}x{stream.height}") from None
+                             f"{self.size[0]}x{self.size[1]}") from None
         if context.options:
             # FFmpeg leaves the options it did not understand here, silently otherwise.
             raise ValueError(f"the encoder ignores {', '.join(sorted(context.options))}")
@@ -279,6 +314,9 @@ class VideoSink(StagedFile):
         """
         if isinstance(frame, np.ndarray):
             video_frame = self._from_bgr(frame)
+        elif not isinstance(frame, av.VideoFrame):
+            raise InputError(f"a frame is a numpy array or an av.VideoFrame, got "
+                             f"{type(frame).__name__}")
         else:
             if (frame.width, frame.height) != self.size:
                 raise InputError(f"frame of {frame.width}x{frame.height} does not fit a "

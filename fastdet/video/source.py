@@ -18,6 +18,8 @@ searches.
 from __future__ import annotations
 
 import contextlib
+import math
+import numbers
 import os
 from fractions import Fraction
 from pathlib import Path
@@ -55,6 +57,14 @@ def _source_kind(source):
     if scheme in NETWORK_SCHEMES:
         return text, None, "network"
     return text, None, "file"
+
+
+def source_file(source):
+    """The file a video source reads (a path), or ``None`` for a camera or a network URL."""
+    if isinstance(source, VideoSource):
+        return source.path
+    url, _, kind = _source_kind(source)
+    return Path(url) if kind == "file" else None
 
 
 def _protocol_options(url, timeout):
@@ -171,6 +181,9 @@ class VideoSource:
             raise InputError(f"--start must be >= 0, got {self.start}")
         if self.end is not None and self.end <= self.start:
             raise InputError(f"--end ({self.end}) must be greater than --start ({self.start})")
+        if timeout is not None and not (isinstance(timeout, numbers.Real)
+                                        and 0 < timeout < math.inf):
+            raise InputError(f"--timeout must be a positive number of seconds, got {timeout!r}")
         url, fmt, self.kind = _source_kind(source)
         self.url = url
         self.path = Path(url) if self.kind == "file" else None

@@ -50,6 +50,9 @@ def samples_figure(dataset, path, n=8, seed=None):
     """
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= 256:
         raise InputError(f"the number of crops per class must be in 1..256, got {n!r}")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
+                             or seed < 0):
+        raise InputError(f"the seed must be a whole number >= 0, got {seed!r}")
     if seed is None:
         # Drawn here (not left to the generator) so the title can show it for a re-run.
         seed = int(np.random.default_rng().integers(2**31))

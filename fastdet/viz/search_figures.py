@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..detector.frames import as_bgr_frame
+from ..errors import InputError
 from ..kernels.label import label_components
 from .figure import (Line2D, Normalize, Rectangle, ScalarMappable, check_output_path, colormaps,
                      new_figure, outline_boxes, rgb, save_figure)
@@ -12,12 +13,24 @@ from .figure import (Line2D, Normalize, Rectangle, ScalarMappable, check_output_
 # -- viz windows ------------------------------------------------------------
 #: Width in pixels of :func:`windows_figure`; the height follows the frame.
 WINDOWS_FIGURE_WIDTH = 1280
+#: Tallest figure drawn: a frame far taller than wide (10x10000) asked matplotlib
+#: for a canvas it could not allocate.
+MAX_FIGURE_HEIGHT = 20000
+
+
+def _checked_height(height, frame_shape):
+    if height > MAX_FIGURE_HEIGHT:
+        raise InputError(f"a picture of a {frame_shape[1]}x{frame_shape[0]} frame would be "
+                         f"{height} pixels tall (at most {MAX_FIGURE_HEIGHT}): the frame is "
+                         "too tall for its width")
+    return height
 
 
 def windows_figure_size(frame_shape):
     """``(width, height)`` in pixels of :func:`windows_figure` for a frame of ``frame_shape``."""
     height, width = frame_shape[:2]
-    return WINDOWS_FIGURE_WIDTH, max(1, round(WINDOWS_FIGURE_WIDTH * height / width))
+    return WINDOWS_FIGURE_WIDTH, _checked_height(
+        max(1, round(WINDOWS_FIGURE_WIDTH * height / width)), frame_shape)
 
 
 def windows_figure(frame_bgr, plans, path):
@@ -109,7 +122,8 @@ def detect_figure_size(frame_shape, plans):
     """
     y0, y1 = detect_view_rows(frame_shape, plans)
     panel_h = round(_DETECT_PANEL_WIDTH * (y1 - y0) / frame_shape[1])
-    return DETECT_FIGURE_WIDTH, 4 * (panel_h + _DETECT_TITLE_PX) + 8
+    return DETECT_FIGURE_WIDTH, _checked_height(4 * (panel_h + _DETECT_TITLE_PX) + 8,
+                                                frame_shape)
 
 
 #: Box colours of the final panel by verdict (see ``detect_figure``'s ``verdicts``).

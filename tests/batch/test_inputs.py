@@ -1,5 +1,6 @@
 """What a batch takes for its videos, and where their outputs go."""
 
+import os
 from pathlib import Path
 
 import pytest
@@ -81,6 +82,24 @@ def test_errors_name_the_problem(tmp_path, footage):
     touch(footage / "b.mkv")
     with pytest.raises(InputError, match="would write the same outputs \\(b\\.\\*\\)"):
         find_videos([footage])
+
+
+def test_files_that_are_no_regular_files_are_not_videos(footage, tmp_path):
+    """A FIFO named like a video: hashing it for the manifest waited for a writer
+    for good.  In a folder it is left out (a dangling link is still taken, and
+    fails alone as an unreadable video); named or listed, it is a one-line error."""
+    os.mkfifo(footage / "pipe.mp4")
+    (footage / "gone.mp4").symlink_to(tmp_path / "nowhere.mp4")
+    relatives = [v.relative for v in find_videos([footage])]
+    assert "pipe.mp4" not in relatives and "gone.mp4" in relatives
+    with pytest.raises(InputError, match="pipe.mp4 is not a regular file"):
+        find_videos([footage / "pipe.mp4"])
+    (tmp_path / "list.txt").write_text("footage/pipe.mp4\n")
+    with pytest.raises(InputError, match="pipe.mp4 \\(listed in .*list.txt\\) is not a regular"):
+        find_videos([tmp_path / "list.txt"])
+    os.mkfifo(tmp_path / "list.fifo")
+    with pytest.raises(InputError, match="list.fifo is not a regular file"):
+        find_videos([tmp_path / "list.fifo"])
 
 
 def test_outputs_mirror_the_relative_path(footage, tmp_path):

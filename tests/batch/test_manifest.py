@@ -38,6 +38,32 @@ def test_a_line_torn_by_a_crash_is_ignored_and_ended(tmp_path):
     assert sorted(Manifest(tmp_path).records) == ["a.mp4", "c.mp4"]
 
 
+@pytest.mark.parametrize("line", [
+    b'{"relative": "x.mp4"}',                                   # no status
+    b'{"relative": "x.mp4", "status": 7}',
+    b'{"relative": "x.mp4", "status": "queued"}',
+    b'{"relative": "x.mp4", "status": "done", "outputs": 5}',
+    b'{"relative": "x.mp4", "status": "done", "outputs": {"video": ["x.mp4"]}}',
+    b'{"relative": "x.mp4", "status": "failed", "reason": 3}',
+    b'{"relative": "x.mp4", "status": "done", "frames": "<script>"}',
+    b'{"relative": "x.mp4", "status": "done", "fps": true}',
+    b'{"relative": "x.mp4", "status": "done", "sha256": null}',
+    b'{"relative": "\xff.mp4", "status": "done"}',              # not UTF-8
+    b'[' * 100000,                                              # nested past the parser
+])
+def test_a_line_that_is_no_record_is_ignored(tmp_path, line):
+    """An edited or foreign manifest: such a line once stopped every later batch
+    of the folder with an internal error (a KeyError in the report, a
+    UnicodeDecodeError on reading); it counts as a torn line instead."""
+    Manifest(tmp_path).add(record("a.mp4", frames=3, outputs={"video": "a.mp4"}))
+    with open(tmp_path / "manifest.jsonl", "ab") as handle:
+        handle.write(line + b"\n")
+    manifest = Manifest(tmp_path)
+    assert list(manifest.records) == ["a.mp4"]
+    manifest.add(record("c.mp4"))
+    assert sorted(Manifest(tmp_path).records) == ["a.mp4", "c.mp4"]
+
+
 def test_file_hash_and_fingerprint(tmp_path):
     path = tmp_path / "clip.mp4"
     path.write_bytes(os.urandom(3 << 20) + b"tail")

@@ -52,6 +52,23 @@ def test_detect_prints_one_json_object_per_image(capsys, model_path, image, tmp_
     assert drawn is not None and drawn.shape == (720, 1280, 3)
 
 
+def test_detect_refuses_two_images_drawn_to_one_name(capsys, model_path, image, tmp_path):
+    """Two images of one name from two folders: the second drawing replaced the
+    first, and both JSON lines named it as their output."""
+    other = tmp_path / "other" / image.name
+    other.parent.mkdir()
+    other.write_bytes(image.read_bytes())
+    drawn = tmp_path / "drawn"
+    assert main(["detect", str(image), str(other), "--model", str(model_path),
+                 "--out-dir", str(drawn)]) == EXIT_ERROR
+    assert f"would both be drawn to {drawn / image.name}" in one_line_error(capsys)
+    assert list(drawn.iterdir()) == []
+    # The same image twice is one drawing.
+    assert main(["detect", str(image), str(image), "--model", str(model_path),
+                 "--out-dir", str(drawn)]) == 0
+    assert [p.name for p in drawn.iterdir()] == [image.name]
+
+
 def test_detect_missing_image(capsys, model_path, tmp_path):
     assert main(["detect", str(tmp_path / "nope.jpg"), "--model", str(model_path)]) == EXIT_ERROR
     assert "not found" in one_line_error(capsys)
@@ -131,6 +148,26 @@ def test_eval_missing_annotations(capsys, model_path, tmp_path):
     assert main(["eval", str(tmp_path / "a.json"), str(tmp_path), "--model", str(model_path)]) \
         == EXIT_ERROR
     one_line_error(capsys)
+
+
+@pytest.mark.parametrize("iou", ["nan", "inf", "0", "-1", "2"])
+def test_eval_refuses_a_match_iou_outside_zero_to_one(capsys, model_path, data_dir, iou):
+    """NaN and infinity stopped eval with an internal error after half the report;
+    0, -1 and 2 printed an "AP-100"."""
+    assert main(["eval", str(data_dir / "test_images" / "annotations.json"),
+                 str(data_dir / "test_images"), "--model", str(model_path),
+                 "--iou", iou]) == EXIT_ERROR
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.strip() == f"fastdet: error: --iou must be in (0, 1], got {float(iou)}"
+
+
+@pytest.mark.parametrize("seed", ["-1"])
+def test_viz_samples_refuses_a_negative_seed(capsys, data_dir, tmp_path, seed):
+    assert main(["viz", "samples", str(data_dir), "--seed", seed,
+                 "--out", str(tmp_path / "s.png")]) == EXIT_ERROR
+    assert "seed must be a whole number >= 0, got -1" in one_line_error(capsys)
+    assert not (tmp_path / "s.png").exists()
 
 
 def make_crops(folder, label, count, rng):

@@ -91,6 +91,14 @@ def test_scales_replace_the_list(tmp_path):
     ("[[search.windows]]\nsize = 2.0\noverlap = 0.5\n", "size"),
     ("[[search.windows]]\nsize = 0.1\n", "overlap"),
     ("[search]\nwindows = 3\n", "list of tables"),
+    # Finite numbers past any sensible size overflowed the kernels' arguments
+    # (1e19 an int64, 1e39 a float32) or made infinite boxes:
+    ("[search]\nreference_size = [true, true]\n", "reference_size"),
+    ("[search]\nband = [true, true]\n", "band"),
+    ("[heat]\nsplit_min_size = 1e19\n", "heat.split_min_size must be at most 1e+09 in size"),
+    ("[search]\ndecision_threshold = -1e39\n", "decision_threshold must be at most 1e+09"),
+    ("[boxes]\nrefine = [" + ", ".join(["[" + ", ".join(["1e308"] * 15) + "]"] * 4) + "]\n",
+     "boxes.refine must be 4 rows of 15 numbers of at most 1e+09 in size"),
     ("[[search.windows]]\nsize = 0.1\noverlap = 0.5\n[[search.scales]]\nwindow = 64\n"
      "overlap = 0.5\nx = [0, 10]\ny = [0, 10]\n", "list one of them"),
 ])

@@ -420,3 +420,31 @@ def test_box_sides_snap_to_the_frame_inside_the_search_band_only(random_model, d
     assert snapping.boxes_from_heat(heat, (0, 0), size).xyxy.tolist() == unsnapped.tolist()
     assert (shaped.boxes_from_heat(heat, (0, 0), size, frame).xyxy.tolist()
             == shaped.boxes_from_heat(heat, (0, 0), size).xyxy.tolist())
+
+
+def test_config_may_be_a_toml_file_and_nothing_else(random_model, tmp_path):
+    """A path was taken as it was, and the first frame failed with an
+    AttributeError deep in the planning."""
+    from fastdet.errors import ConfigError
+
+    path = tmp_path / "detector.toml"
+    path.write_text("[heat]\nthreshold = 3\n[search]\ndecision_threshold = -0.5\n")
+    for config in (path, str(path)):
+        detector = Detector(random_model, config, threads=1, preload=False)
+        assert detector.config.heat.threshold == 3
+        assert detector.config.search.decision_threshold == -0.5
+    detector.config = None
+    assert detector.config == DetectorConfig()
+    for wrong in ({"heat": {"threshold": 3}}, 5):
+        with pytest.raises(ConfigError, match="config must be a DetectorConfig or a TOML file"):
+            Detector(random_model, wrong, threads=1, preload=False)
+        with pytest.raises(ConfigError, match="config must be a DetectorConfig or a TOML file"):
+            detector.config = wrong
+    with pytest.raises(ConfigError, match="missing.toml"):
+        Detector(random_model, tmp_path / "missing.toml", threads=1, preload=False)
+
+
+@pytest.mark.parametrize("threads", ["2", 1.5, True])
+def test_threads_must_be_a_whole_number(random_model, threads):
+    with pytest.raises(InputError, match="threads must be a whole number"):
+        Detector(random_model, threads=threads, preload=False)

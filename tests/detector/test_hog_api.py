@@ -92,6 +92,18 @@ def test_other_dtypes_follow_skimage(dtype):
     assert_same(actual, expected)
 
 
+@pytest.mark.parametrize("orientations", [255, 256, 257, 300])
+@pytest.mark.parametrize("channel_axis", [None, -1])
+def test_more_bins_than_a_byte_holds_match_skimage(orientations, channel_axis):
+    """uint8 images look their bins up in an 8-bit table, which holds up to 255
+    bins and the mark of a dropped pixel; from 256 bins they wrapped, and the
+    features were off by up to 0.2."""
+    rng = np.random.default_rng(orientations)
+    image = make_image(rng, (32, 40) + ((3,) if channel_axis is not None else ()), "uint8")
+    assert_same(*both(image, orientations=orientations, cells_per_block=(2, 2),
+                      channel_axis=channel_axis, feature_vector=False))
+
+
 def test_default_options_give_fastdet_block_shape():
     blocks = fastdet.hog(np.zeros((64, 64), np.uint8), feature_vector=False)
     assert blocks.shape == (7, 7, 2, 2, 9)
@@ -112,6 +124,7 @@ def skimage_error(image, **kwargs):
     (np.zeros((5, 5), np.uint8), {"cells_per_block": (1, 1)}),   # not one cell
     (np.zeros((32, 32), np.uint8), {"block_norm": "L3"}),
     (np.zeros((32, 32), np.complex64), {}),
+    (np.zeros((32, 32, 0), np.uint8), {"channel_axis": -1}),     # no channel at all
 ])
 def test_invalid_input_raises_like_skimage(image, kwargs):
     with pytest.raises(ValueError) as info:

@@ -298,6 +298,20 @@ def test_invalid_feature_option_value(saved, tmp_path):
     assert_model_error(bad, "pixels_per_cell")
 
 
+@pytest.mark.parametrize("option, value", [
+    ("use_hog", "false"),          # a string, which is true: the HOG was used
+    ("use_hog", 0),
+    ("color_space", ["HLS"]),      # unhashable: a message about hashing, not the option
+    ("hog_channel", ["all"]),
+    ("block_norm", {"L2": 1}),
+])
+def test_feature_option_of_another_type(saved, tmp_path, option, value):
+    path, _ = saved
+    bad = rewrite_metadata(path, tmp_path,
+                           lambda m: m["feature_options"].update({option: value}))
+    assert_model_error(bad, option)
+
+
 @pytest.mark.parametrize("key", ["feature_options", "bias", "feature_length",
                                  "weights_sha256"])
 def test_missing_metadata_key(saved, tmp_path, key):

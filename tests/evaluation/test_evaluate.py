@@ -409,6 +409,9 @@ def test_load_annotations_not_json(tmp_path):
     ({"images": {"a.jpg": [{"box": [0, 0, "1", 1]}]}}, "box must be a list of 4"),
     ({"images": {"a.jpg": [{"box": [0, 0, True, 1]}]}}, "box must be a list of 4"),
     ({"images": {"a.jpg": [{"box": [5, 0, 5, 1]}]}}, "x2 > x1"),
+    # Finite, but areas and overlaps overflowed (NumPy's warnings on stderr):
+    ({"images": {"a.jpg": [{"box": [0, 0, 1e308, 1e308]}]}}, "at most 1e\\+07 in size"),
+    ({"images": {"a.jpg": [{"box": [-1e8, 0, 1, 1]}]}}, "at most 1e\\+07 in size"),
     ({"images": {"a.jpg": [{"box": [0, 0, 1, 1], "difficult": "yes"}]}}, "difficult must be"),
     ({"images": {"a.jpg": [{"box": [0, 0, 1, 1], "label": 3}]}}, "label must be"),
     ({"images": {"a.jpg": [{"box": [0, 0, 1, 1], "id": "seven"}]}}, "id must be an integer"),
@@ -418,6 +421,12 @@ def test_load_annotations_structure_errors(tmp_path, content, message):
     with pytest.raises(InputError, match=message) as info:
         load_annotations(write(tmp_path, content))
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("iou", [0, -1, 1.5, float("nan")])
+def test_evaluate_rejects_a_match_iou_outside_zero_one(iou):
+    with pytest.raises(InputError, match="match IoU"):
+        evaluate({}, {}, iou_threshold=iou)
 
 
 @pytest.mark.parametrize("cover", [0, -0.5, 1.5])

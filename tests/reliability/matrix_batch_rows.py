@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -93,6 +94,10 @@ BATCH_ROWS = [
     Row("batch", "a folder without videos",
         lambda i, o: batch(i / "empty_data", "--out-dir", o / "b"),
         names=lambda i, o: i / "empty_data", problem="no videos found"),
+    Row("batch", "input a FIFO named like a video",
+        lambda i, o: batch(o / "pipe.mp4", "--out-dir", o / "b"),
+        names=lambda i, o: o / "pipe.mp4", problem="not a regular file",
+        setup=lambda i, o: contextlib.nullcontext(os.mkfifo(o / "pipe.mp4"))),
     Row("batch", "--out-dir is a file",
         lambda i, o: batch(i.video.clip, "--out-dir", i / "grey.png"),
         names=lambda i, o: i / "grey.png", problem="not a folder",

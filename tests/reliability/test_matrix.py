@@ -240,6 +240,11 @@ ROWS = [
                       ["detect", s(i.image), "--out-dir", s(o)])[1],
         names=lambda i, o: o / "image.jpg", problem="symbolic link",
         guarded=lambda i, o: [o.parent / "outside.jpg"]),
+    Row("detect", "two images of one name for one --out-dir",
+        lambda i, o: (os.makedirs(o / "a", exist_ok=True), shutil.copy(i.image, o / "a"),
+                      ["detect", s(i.image), s(o / "a" / "image.jpg"), "--out-dir",
+                       s(o / "d")])[-1],
+        names=lambda i, o: o / "d" / "image.jpg", problem="would both be drawn to"),
     # ---- eval ---------------------------------------------------------------------
     *bad_file_rows("eval", "annotations", lambda p, i, o: ["eval", s(p), s(i.dir)]),
     Row("eval", "annotations of the wrong structure",
@@ -254,6 +259,9 @@ ROWS = [
     Row("eval", "model tampered with",
         lambda i, o: ["eval", s(i.annotations), s(i.dir), "--model", s(i / "tampered.npz")],
         names=lambda i, o: i / "tampered.npz", problem="checksum"),
+    Row("eval", "--iou not a number",
+        lambda i, o: ["eval", s(i.annotations), s(i.dir), "--iou", "nan"],
+        names=lambda i, o: "nan", problem="--iou must be in"),
     Row("eval", "annotated image", lambda i, o: ["eval", s(i.annotations), s(i.dir)], code=0),
     # ---- train --------------------------------------------------------------------
     Row("train", "data folder missing",

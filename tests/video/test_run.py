@@ -158,6 +158,36 @@ def test_callback_sees_every_frame_in_order(tmp_path):
                           callback=lambda index, detections: seen.append((index, len(detections))))
     assert [index for index, _ in seen] == list(range(9)) and stats.frames == 9
     assert all(count == 1 for _, count in seen)
+    with pytest.raises(InputError, match="callback must be callable, got int"):
+        process_video(path, None, VideoPipeline(BlockDetector()), callback=5)
+
+
+@pytest.mark.parametrize("outputs, problem", [
+    (lambda clip, folder: {"target": clip}, "it is the input"),
+    (lambda clip, folder: {"target": folder / "link.mp4"}, "it is the input"),
+    (lambda clip, folder: {"detections": clip}, "it is the input"),
+    (lambda clip, folder: {"target": folder / "o.mp4", "detections": folder / "o.mp4"},
+     "same file"),
+    (lambda clip, folder: {"detections": folder / "run.toml", "config": folder / "run.toml"},
+     "it is the input"),
+])
+def test_outputs_never_replace_the_input(tmp_path, outputs, problem):
+    """The API refuses what ``fastdet run`` refuses: an output that would replace the
+    video read (once, through the API, the input became its annotated copy), the
+    config file or the other output; nothing is opened or written."""
+    frames, _ = moving_block(4)
+    clip = tmp_path / "clip.mp4"
+    with VideoSink(clip, 10.0, (frames[0].shape[1], frames[0].shape[0])) as sink:
+        for frame in frames:
+            sink.write(frame)
+    (tmp_path / "link.mp4").symlink_to(clip)
+    (tmp_path / "run.toml").write_text("[track]\nevery = 1\n")
+    before = {path.name: path.read_bytes() for path in tmp_path.iterdir()}
+    arguments = outputs(clip, tmp_path)
+    with pytest.raises(InputError, match=problem):
+        process_video(clip, arguments.pop("target", None), VideoPipeline(BlockDetector()),
+                      **arguments)
+    assert {path.name: path.read_bytes() for path in tmp_path.iterdir()} == before
 
 
 class SlowWarmUpDetector(BlockDetector):

@@ -150,6 +150,50 @@ def test_bad_encoder_settings_are_one_line_errors(tmp_path, options, message):
     assert leftovers(tmp_path) == [] and not (tmp_path / "out.mp4").exists()
 
 
+@pytest.mark.parametrize("fps, size, message", [
+    (0, SIZE, "frame rate must be a positive number, got 0"),
+    (-25, SIZE, "frame rate must be a positive number, got -25"),
+    (float("nan"), SIZE, "frame rate must be a positive number, got nan"),
+    (float("inf"), SIZE, "frame rate must be a positive number, got inf"),
+    (1e-9, SIZE, "frame rate must be a positive number"),
+    ("abc", SIZE, "frame rate must be a positive number, got 'abc'"),
+    (25.0, (-320, -240), "size must be \\(width, height\\) in whole pixels, got \\(-320, -240\\)"),
+    (25.0, 320, "size must be .* got 320"),
+    (25.0, (320.5, 240), "size must be .* got \\(320.5, 240\\)"),
+    (25.0, ("a", "b"), "size must be .* got \\('a', 'b'\\)"),
+])
+def test_bad_rates_and_sizes_are_one_line_errors(tmp_path, fps, size, message):
+    """They were Python's own errors (ZeroDivisionError, OverflowError, TypeError), or the
+    encoder's refusal of its preset, with a temporary file left behind."""
+    with pytest.raises(InputError, match=message):
+        VideoSink(tmp_path / "out.mp4", fps, size)
+    assert leftovers(tmp_path) == [] and not (tmp_path / "out.mp4").exists()
+
+
+@pytest.mark.parametrize("crf", ["a", True, [23]])
+def test_a_quality_that_is_no_number_is_a_one_line_error(tmp_path, crf):
+    with pytest.raises(InputError, match="must be a number 0-51"):
+        VideoSink(tmp_path / "out.mp4", 25.0, SIZE, crf=crf)
+    assert leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("frame", [None, [[0, 0, 0]], "frame"])
+def test_a_frame_that_is_no_array_is_refused(tmp_path, frame):
+    with pytest.raises(InputError, match="a frame is a numpy array or an av.VideoFrame"):
+        with VideoSink(tmp_path / "out.mp4", 25.0, SIZE) as sink:
+            sink.write(frame)
+    assert leftovers(tmp_path) == [] and not (tmp_path / "out.mp4").exists()
+
+
+@pytest.mark.parametrize("size", [(1280, 16), (24, 1280), (2, 2)])
+def test_av1_refuses_sides_its_encoder_hangs_or_fails_on(tmp_path, size):
+    """SVT-AV1 waited forever inside its encoder on 1280x16 (SIGTERM and all) and
+    printed its own errors on 2x2."""
+    with pytest.raises(InputError, match="the av1 encoder needs at least 32 pixels on each side"):
+        VideoSink(tmp_path / "out.mp4", 25.0, size, codec="av1")
+    assert leftovers(tmp_path) == []
+
+
 def test_discards_on_error_and_keeps_the_old_file(tmp_path):
     path = tmp_path / "out.mp4"
     path.write_bytes(b"previous")

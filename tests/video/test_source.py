@@ -268,3 +268,11 @@ def test_a_seek_that_cannot_be_checked_decodes_from_the_start(gop_clip, monkeypa
     monkeypatch.setattr(source_module, "seek_point", lambda *args: None)
     with VideoSource(gop_clip, start=100) as video:
         assert [frame_number(f) for f in video] == list(range(100, 120))
+
+
+@pytest.mark.parametrize("timeout", [0, -1, float("nan"), float("inf"), "5"])
+def test_a_timeout_that_is_no_positive_number_is_refused(data_dir, timeout):
+    """NaN reached FFmpeg's options (an internal error on a stream) and passed
+    unnoticed on a file."""
+    with pytest.raises(InputError, match="--timeout must be a positive number of seconds"):
+        VideoSource(data_dir / "test_video.mp4", timeout=timeout)

@@ -70,6 +70,10 @@ def test_from_dict_rejects_unknown_key_by_name():
     ("min_patch_overlap", -0.1, "track.min_patch_overlap"),
     ("search_radius", float("nan"), "track.search_radius"),
     ("scene_change_threshold", "high", "track.scene_change_threshold"),
+    # Valid-looking sizes that ran out of memory or overflowed a kernel's arguments:
+    ("heat_frames", 10 ** 12, "track.heat_frames must be an integer in 1..100"),
+    ("box_frames", 10 ** 23, "track.box_frames must be an integer in 1..1000"),
+    ("search_radius", 1e308, "track.search_radius must be a finite number in 0..10000"),
 ])
 def test_invalid_values_name_the_key(key, value, fragment):
     with pytest.raises(ConfigError, match=fragment):
@@ -573,3 +577,26 @@ def test_warm_up_loads_the_pipelines_own_kernels(mode):
     result = json.loads(done.stdout.strip().splitlines()[-1])
     assert result["smoothing"] and result["frames"] == 0 and result["seconds"] > 0
     assert result["tracking"] == (mode == "track")
+
+
+@pytest.mark.parametrize("every", [2, 3, 5, 8])
+def test_frames_needed_follow_the_search_schedule(every):
+    """``frames_needed`` says which frames ``process`` searches, from any point
+    of the schedule: the same as ``searches_ahead`` over the next frames."""
+    frames, _ = moving_block(3 * every + 2)
+    pipeline = VideoPipeline(BlockDetector(), TrackConfig(every=every))
+    for index, frame in enumerate(frames):
+        needed = pipeline.frames_needed(index)
+        ahead = pipeline.searches_ahead(2 * every)
+        assert [needed(index + k) for k in range(2 * every)] == ahead
+        pipeline.process(frame)
+
+
+def test_frames_needed_of_a_very_long_period_at_once():
+    """It listed every frame of a period first: ``--every 2147483648`` ran for
+    minutes and gigabytes before the first frame."""
+    pipeline = VideoPipeline(BlockDetector(), TrackConfig(every=2 ** 62))
+    needed = pipeline.frames_needed(10)
+    assert needed(10) and not needed(11) and needed(10 + 2 ** 62)
+    pipeline.process(moving_block(1)[0][0])
+    assert not pipeline.frames_needed(11)(11)

@@ -142,6 +142,23 @@ def test_detect(model_path, frame_path, data_dir, tmp_path):
     assert_figure(out, size)
 
 
+def test_figures_of_frames_far_taller_than_wide_are_refused():
+    """A 10x10000 frame asked matplotlib for a canvas millions of pixels tall
+    (``std::bad_alloc``, an internal error)."""
+    from fastdet.detector.config import DetectorConfig
+    from fastdet.detector.features import FeatureOptions
+    from fastdet.detector.plan import plan_scales
+    from fastdet.errors import InputError
+    from fastdet.viz.search_figures import detect_figure_size, windows_figure_size
+
+    plans = plan_scales(DetectorConfig(), FeatureOptions(), (10, 10000))
+    with pytest.raises(InputError, match="10x10000 frame would be .* pixels tall"):
+        detect_figure_size((10000, 10, 3), plans)
+    with pytest.raises(InputError, match="too tall for its width"):
+        windows_figure_size((10000, 10, 3))
+    assert windows_figure_size((1280, 720, 3)) == (1280, 2276)   # taller than wide: drawn
+
+
 def test_detect_figure_asks_the_verdict_of_every_final_box(model_path, frame_path, tmp_path):
     from fastdet.detector.detector import Detector
     from fastdet.detector.model import load_model
