@@ -15,7 +15,6 @@ error).
 
 from __future__ import annotations
 
-import math
 import re
 import sys
 from pathlib import Path
@@ -171,8 +170,6 @@ def cmd_run(args):
         out = args.out = default_output(args.video)
     # Before any work: no output may replace an input or the other output.
     refuse_clashing_outputs(args.video, out, detections_path, [args.model, args.config])
-    if not 0 < args.timeout < math.inf:     # NaN too
-        raise InputError(f"--timeout must be a positive number of seconds, got {args.timeout}")
     # Problems with the input, then with the model or config, then with the
     # outputs: each is reported before any output file exists.
     plan = _plan(args, track_config(args))
