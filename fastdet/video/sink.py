@@ -206,7 +206,7 @@ class VideoSink(StagedFile):
     preset : str, optional
         Encoder speed preset (x264/x265 names, SVT-AV1 and VP9 numbers).
     threads : int
-        Encoder threads.
+        Encoder threads (>= 1).
     time_base : Fraction, optional
         Unit of the ``pts`` given to :meth:`write` (default ``1 / fps``).
     colour : tuple of int, optional
@@ -230,6 +230,9 @@ class VideoSink(StagedFile):
                  time_base=None, colour=None):
         # Checked before the temporary file exists.
         rate, size = _frame_rate(fps), _frame_size(size)
+        if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1:
+            raise InputError(f"encoder threads must be a whole number >= 1, got {threads!r}")
+        threads = int(threads)
         options = codec_options(codec, crf, preset, threads)
         least = MIN_SIDE.get(codec, 1)
         if min(even(size[0]), even(size[1])) < least:

@@ -21,6 +21,7 @@ import contextlib
 import math
 import numbers
 import os
+import threading
 from fractions import Fraction
 from pathlib import Path
 from urllib.parse import urlparse
@@ -65,6 +66,50 @@ def source_file(source):
         return source.path
     url, _, kind = _source_kind(source)
     return Path(url) if kind == "file" else None
+
+
+def _interruptible(work, abandon):
+    """Run ``work()`` so that a signal handler that raises cuts the wait short.
+
+    The main thread runs Python's signal handlers only between bytecodes, and
+    FFmpeg blocks in C while it connects or waits for a first packet (up to
+    the timeout).  So, on the main thread, ``work`` runs on a daemon thread
+    while the main thread waits on a lock, which a signal interrupts.  If the
+    wait is cut short, the exception propagates at once and ``abandon()``
+    runs on that thread once ``work`` returns, to close what it opened.
+    Elsewhere (a worker thread of a batch run) ``work`` runs directly.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        work()
+        return
+    outcome = {}
+    lock = threading.Lock()
+    finished = threading.Event()
+
+    def run():
+        try:
+            work()
+        except BaseException as exc:   # handed to the waiting thread
+            outcome["error"] = exc
+        with lock:
+            finished.set()
+            abandoned = outcome.get("abandoned", False)
+        if abandoned and "error" not in outcome:
+            with contextlib.suppress(Exception):
+                abandon()
+
+    thread = threading.Thread(target=run, name="fastdet-open", daemon=True)
+    thread.start()
+    try:
+        finished.wait()
+    except BaseException:
+        with lock:
+            outcome["abandoned"] = not finished.is_set()
+        if not outcome["abandoned"]:
+            abandon()
+        raise
+    if "error" in outcome:
+        raise outcome["error"]
 
 
 def _protocol_options(url, timeout):
@@ -192,12 +237,11 @@ class VideoSource:
         options = _protocol_options(url, timeout) if self.kind == "network" else {}
         self._open_arguments = (url, fmt, options, None if timeout is None else (timeout, timeout))
         self._threads = threads
-        self._open()
-        try:
-            self._first = self._read_first()
-        except BaseException:
-            self._container.close()
-            raise
+        if self.kind == "file":
+            self._open_and_read_first()
+        else:
+            # A connection or camera may take up to the timeout to answer.
+            _interruptible(self._open_and_read_first, self._abandon)
         self.size = (self._first.width, self._first.height)
         self.colour = (int(self._first.colorspace), int(self._first.color_range))
         self._converter = FrameConverter()
@@ -205,6 +249,20 @@ class VideoSource:
         self.damage.expected = self.expected_frames
 
     # -- opening --------------------------------------------------------------------
+    def _open_and_read_first(self):
+        self._open()
+        try:
+            self._first = self._read_first()
+        except BaseException:
+            self._container.close()
+            raise
+
+    def _abandon(self):
+        """Close what an interrupted :meth:`_open_and_read_first` opened once it returns."""
+        container = getattr(self, "_container", None)
+        if container is not None:
+            container.close()
+
     def _open(self):
         url, fmt, options, timeout = self._open_arguments
         try:

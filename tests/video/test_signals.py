@@ -19,11 +19,14 @@ sends 20 of each anywhere in the 1000 frames and prints a table.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import signal
+import socket
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from fractions import Fraction
@@ -176,3 +179,56 @@ def test_signal_stress_20_of_each_over_the_whole_loop(data_dir, tmp_path):
     results = trials(video, tmp_path, count=20, frames=(1, LOOPED_FRAMES - 10), seed=seed)
     print(f"\nseed {seed}\n{table(results)}")
     assert len(results) == 40
+
+
+class SilentServer:
+    """A TCP server on 127.0.0.1 that accepts connections and never answers them."""
+
+    def __init__(self):
+        self.listener = socket.socket()
+        self.listener.bind(("127.0.0.1", 0))
+        self.listener.listen(4)
+        self.port = self.listener.getsockname()[1]
+        self.accepted = threading.Event()
+        self.connections = []
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self):
+        with contextlib.suppress(OSError):
+            while True:
+                connection, _ = self.listener.accept()
+                self.connections.append(connection)
+                self.accepted.set()
+
+    def close(self):
+        for connection in self.connections:
+            connection.close()
+        self.listener.close()
+
+
+@pytest.mark.parametrize("signum", list(SIGNALS), ids=lambda s: s.name)
+def test_a_signal_while_a_stream_connects_ends_the_run_at_once(tmp_path, signum):
+    """FFmpeg waits in C for the stream's first bytes (here up to 60 s); the signal must not."""
+    server = SilentServer()
+    try:
+        command = [sys.executable, "-m", "fastdet.cli", "run",
+                   f"http://127.0.0.1:{server.port}/clip.mp4", "--timeout", "60", "--quiet"]
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                   text=True, cwd=tmp_path, env=dict(os.environ,
+                                                                     PYTHONPATH=str(ROOT)))
+        try:
+            assert server.accepted.wait(60), "fastdet run never connected"
+            time.sleep(0.3)   # into FFmpeg's wait for the response
+            sent = time.monotonic()
+            process.send_signal(signum)
+            stdout, stderr = process.communicate(timeout=30)
+            waited = time.monotonic() - sent
+        finally:
+            if process.poll() is None:
+                process.kill()
+    finally:
+        server.close()
+    assert process.returncode == SIGNALS[signum], stderr
+    assert (stdout, stderr) == ("", "fastdet: interrupted\n")
+    assert waited < 10, f"the run took {waited:.1f} s to end after the signal"
+    assert list(tmp_path.iterdir()) == []

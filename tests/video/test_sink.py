@@ -177,6 +177,14 @@ def test_a_quality_that_is_no_number_is_a_one_line_error(tmp_path, crf):
     assert leftovers(tmp_path) == []
 
 
+@pytest.mark.parametrize("threads", [-3, 0, 1.5, True, "2"])
+def test_encoder_threads_that_are_no_count_are_a_one_line_error(tmp_path, threads):
+    """-3 was handed to FFmpeg as it was."""
+    with pytest.raises(InputError, match="encoder threads must be a whole number >= 1, got"):
+        VideoSink(tmp_path / "out.mp4", 25.0, SIZE, threads=threads)
+    assert leftovers(tmp_path) == []
+
+
 @pytest.mark.parametrize("frame", [None, [[0, 0, 0]], "frame"])
 def test_a_frame_that_is_no_array_is_refused(tmp_path, frame):
     with pytest.raises(InputError, match="a frame is a numpy array or an av.VideoFrame"):
