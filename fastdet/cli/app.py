@@ -60,9 +60,23 @@ def _add_to_every_verb(parser):
                 _add_to_every_verb(verb)
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser that takes options only as spelt in full.
+
+    With argparse's prefix matching, ``fastdet detect --out x.jpg`` was
+    ``--out-dir x.jpg`` and made a folder named ``x.jpg``; an option given
+    as a prefix is now an unrecognised argument.  The verbs' parsers are of
+    this class too (``add_subparsers`` makes them of its parser's class).
+    """
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+
 def build_parser():
     """The argument parser of the ``fastdet`` command."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="fastdet", description="Fast classical vehicle detection (HOG + linear SVM).")
     _add_global_options(parser, False)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")

@@ -69,6 +69,17 @@ def test_detect_refuses_two_images_drawn_to_one_name(capsys, model_path, image, 
     assert [p.name for p in drawn.iterdir()] == [image.name]
 
 
+@pytest.mark.parametrize("verb, prefix", [("detect", "--out"), ("run", "--detect")])
+def test_an_option_given_by_a_prefix_is_refused(capsys, image, tmp_path, verb, prefix):
+    """``detect --out x.jpg`` was ``--out-dir x.jpg``: a folder named x.jpg."""
+    target = tmp_path / "x.jpg"
+    with pytest.raises(SystemExit) as stop:
+        main([verb, str(image), prefix, str(target)])
+    assert stop.value.code == 2
+    assert f"unrecognized arguments: {prefix} {target}" in capsys.readouterr().err
+    assert not target.exists()
+
+
 def test_detect_missing_image(capsys, model_path, tmp_path):
     assert main(["detect", str(tmp_path / "nope.jpg"), "--model", str(model_path)]) == EXIT_ERROR
     assert "not found" in one_line_error(capsys)
