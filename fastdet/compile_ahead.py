@@ -131,11 +131,35 @@ def start_helper(names, claims):
     process never looks.  It finds the cache folder as this process does
     (``NUMBA_CACHE_DIR``, inherited, or the same key) and prints one JSON
     line of seconds per family it compiled.
+
+    A helper still running when this process exits is stopped then, and the
+    claims removed (:func:`stop_helper`): a compile waited for returns only
+    once its helper has ended, so such a helper's work was abandoned (Ctrl-C
+    while the kernels compiled on a thread of their own), and it would
+    otherwise go on for up to a family's compile.
     """
     package_root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    return subprocess.Popen([sys.executable, "-c", _HELPER_CODE, package_root, "--claims",
-                             claims.folder, *names],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    helper = subprocess.Popen([sys.executable, "-c", _HELPER_CODE, package_root, "--claims",
+                               claims.folder, *names],
+                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    atexit.register(stop_helper, helper, claims)
+    return helper
+
+
+def stop_helper(helper, claims):
+    """Stop ``helper`` if it is still running, and remove ``claims`` (if this side made them).
+
+    Numba writes each cache file under a temporary name and renames it, so a
+    helper stopped mid-compile leaves no broken cache entry.
+    """
+    if helper.poll() is None:
+        helper.terminate()
+        try:
+            helper.wait(5)
+        except subprocess.TimeoutExpired:
+            helper.kill()
+            helper.wait()
+    claims.remove()
 
 
 def cache_base():
@@ -220,7 +244,6 @@ def start_early(names=DETECTION_FAMILIES):
         claims.remove()
         return []
     _early.update(helper=helper, names=tuple(ordered), claims=claims)
-    atexit.register(_stop_untaken, helper, claims)
     return ordered
 
 
@@ -243,10 +266,3 @@ def take_early(names):
     _early.update(helper=None, names=(), claims=None)
     return helper, shared, claims
 
-
-def _stop_untaken(helper, claims):
-    if helper.poll() is None and _early["helper"] is helper:
-        helper.terminate()
-        helper.wait()
-    if _early["claims"] is claims:
-        claims.remove()

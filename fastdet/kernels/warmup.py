@@ -30,7 +30,7 @@ import time
 import numpy as np
 
 from ..compile_ahead import (DETECTION_FAMILIES, FamilyClaims, compile_order, start_helper,
-                             take_early)
+                             stop_helper, take_early)
 
 log = logging.getLogger("fastdet.kernels")
 
@@ -332,6 +332,11 @@ def warm(names=DETECTION_FAMILIES, processes=None, claims=None):
         if helper is not None:
             output, _ = helper.communicate()
             helper_seconds = _parse_report(output) if helper.returncode == 0 else {}
+    except BaseException:
+        # Interrupted (Ctrl-C in `fastdet warmup`): the helper's compile is abandoned too.
+        if helper is not None:
+            stop_helper(helper, claims)
+        raise
     finally:
         if claims is not None:
             claims.remove()

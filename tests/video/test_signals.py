@@ -232,3 +232,51 @@ def test_a_signal_while_a_stream_connects_ends_the_run_at_once(tmp_path, signum)
     assert (stdout, stderr) == ("", "fastdet: interrupted\n")
     assert waited < 10, f"the run took {waited:.1f} s to end after the signal"
     assert list(tmp_path.iterdir()) == []
+
+
+def processes_naming(text):
+    """PIDs of the processes whose command line holds ``text``."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            with contextlib.suppress(OSError):
+                if text.encode() in (entry / "cmdline").read_bytes():
+                    found.append(int(entry.name))
+    return found
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="the compile helper needs a second core")
+def test_a_signal_while_kernels_compile_stops_the_compile_helper(data_dir, tmp_path):
+    """The kernels compile on a thread of this process and in a helper process; Ctrl-C
+    ended the run at once but left the helper compiling for up to a family's compile
+    (about 6 s) and its claims folder behind."""
+    temporary, cache = tmp_path / "tmp", tmp_path / "cache"
+    temporary.mkdir()
+    env = dict(os.environ, PYTHONPATH=str(ROOT), TMPDIR=str(temporary),
+               FASTDET_CACHE_DIR=str(cache))
+    # Set by this process's fastdet (the suite's warm cache), it would win over the empty one.
+    env.pop("NUMBA_CACHE_DIR", None)
+    command = [sys.executable, "-m", "fastdet.cli", "run",
+               str((data_dir / "test_video.mp4").resolve()), "--out", str(tmp_path / "out.mp4"),
+               "--quiet"]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, cwd=tmp_path, env=env)
+    try:
+        deadline = time.monotonic() + 60
+        claims = []
+        while not claims and time.monotonic() < deadline and process.poll() is None:
+            claims = [p for p in temporary.glob("fastdet-compile-*") if any(p.iterdir())]
+            time.sleep(0.05)
+        assert claims, "no compile helper was started"
+        assert processes_naming(str(claims[0])), "the helper is not running"
+        time.sleep(0.5)   # both processes compiling
+        process.send_signal(signal.SIGINT)
+        stdout, stderr = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1] == "fastdet: interrupted"
+    assert processes_naming(str(claims[0])) == []
+    assert list(temporary.iterdir()) == []
+    assert not (tmp_path / "out.mp4").exists()
