@@ -129,6 +129,45 @@ def test_add_spatial_scores_matches_naive(parallel, map_shape, size, step):
     assert_scores_close(out, expected, 255 * np.abs(weights).sum())
 
 
+def _window_row_walk(dots, windows):
+    """Every window of a grid dotted by the block ``dots``, ``windows`` at a time."""
+    from numba import njit
+
+    @njit(nogil=True)
+    def walk(image2d, weights2d, step_rows, step_cols, out):
+        rows, length = weights2d.shape
+        image_flat, weights_flat = image2d.ravel(), weights2d.ravel()
+        for iy in range(out.shape[0]):
+            cols = out.shape[1]
+            for ix in range(0, cols, windows):
+                dots(image_flat, image2d.shape[1], iy * step_rows, ix * step_cols, step_cols,
+                     weights_flat, rows, length, out[iy], ix, min(windows, cols - ix))
+
+    return walk
+
+
+@pytest.mark.parametrize("windows", [1, 3, 4])
+def test_the_spatial_rows_block_gives_the_general_blocks_bits(windows):
+    """The block for the default spatial rows (96 elements) writes each row's
+    products out in full; each window's sum must keep the general block's
+    order, bit for bit (windows 1-4 a call, a last call with fewer)."""
+    from fastdet.kernels.score import SPATIAL_ROW, _row_window_dots
+
+    rng = np.random.default_rng(windows)
+    image = rng.normal(size=(70, 61 * 3 + SPATIAL_ROW)).astype(np.float32)
+    weights = rng.normal(size=(32, SPATIAL_ROW)).astype(np.float32)
+    grids = []
+    for fixed in (None, SPATIAL_ROW):
+        out = np.zeros((5, 23), np.float32)
+        _window_row_walk(_row_window_dots(windows, fixed), windows)(image, weights, 9, 6, out)
+        grids.append(out)
+    np.testing.assert_array_equal(grids[1], grids[0])
+    expected = np.array([[np.dot(image[iy * 9:iy * 9 + 32, ix * 6:ix * 6 + SPATIAL_ROW].ravel()
+                                 .astype(np.float64), weights.ravel().astype(np.float64))
+                          for ix in range(23)] for iy in range(5)])
+    assert_scores_close(grids[1], expected, np.abs(weights).sum() * 4)
+
+
 @pytest.mark.parametrize("parallel", [False, True])
 def test_a_windows_spatial_score_does_not_depend_on_its_neighbours(parallel):
     # Windows are dotted several at a time; shifting the map by three windows
