@@ -40,7 +40,8 @@ from llvmlite import ir
 from numba import njit, prange, types, uint64
 from numba.extending import intrinsic
 
-from ._llvm import counted_loop, fused_multiply_add, load_vector, splat, store_vector
+from ._llvm import (HAVE_AVX2, HAVE_AVX512F, counted_loop, fused_multiply_add, load_vector,
+                    splat, store_vector)
 from .alloc import empty, full, zeros
 from .blocks import EPS, NORM_CODES
 from .hog import to_phase_layout
@@ -390,8 +391,15 @@ def _window_dots(rows):
     return intrinsic(dots)
 
 
-#: Window rows scored together per block row, at most.
-_MAX_ROWS = 4
+#: Window rows scored together per block row, at most: as many as keep the
+#: block's sums in registers (two chains of 16 lanes per row; any grouping
+#: gives the same bits).  AVX-512's 32 registers hold four rows' sums, AVX2's
+#: 16 three: with four, three sums went through the stack at every feature
+#: pair, and the blocks took 1.22x the time of three (AMD EPYC Zen 3, the
+#: same window rows).  Without AVX2 (16 lanes are four SSE registers, and
+#: without FMA its exact emulation needs more), one row: 0.78x the time of
+#: four under ``NUMBA_CPU_NAME=generic``.
+_MAX_ROWS = 4 if HAVE_AVX512F else 3 if HAVE_AVX2 else 1
 _window_dots_1 = _window_dots(1)
 _window_dots_2 = _window_dots(2)
 _window_dots_3 = _window_dots(3)
