@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from fastdet.kernels.blocks import normalize_blocks
-from fastdet.kernels import colour, hog
+from fastdet.kernels import colour, hog, score
 from fastdet.kernels.heat import accumulate_heat
 from fastdet.kernels.hog import cell_histograms
 from fastdet.kernels.label import component_boxes, label_components
@@ -103,6 +103,83 @@ class CellBlockOrders:
         self.walk(*self.args)
 
     def time_group_blocks(self, label, two_pass, fused_add):
+        self.walk(*self.args)
+
+
+@functools.lru_cache(maxsize=None)
+def _spatial_grid_walk(fixed):
+    """A jitted walk of the spatial dot block over a grid of windows, four a
+    call: the block for the default 96-element rows (``fixed``) or the general
+    one.  Not cached on disk, like :func:`_group_blocks_over_image`."""
+    from numba import njit
+
+    dots = score._row_window_dots(score._DOT_WINDOWS,
+                                  score.SPATIAL_ROW if fixed else None)
+    windows = score._DOT_WINDOWS
+
+    @njit(nogil=True)
+    def walk(image2d, weights2d, step_rows, step_cols, out):
+        rows, length = weights2d.shape
+        image_flat, weights_flat = image2d.ravel(), weights2d.ravel()
+        for iy in range(out.shape[0]):
+            cols = out.shape[1]
+            for ix in range(0, cols, windows):
+                dots(image_flat, image2d.shape[1], iy * step_rows, ix * step_cols, step_cols,
+                     weights_flat, rows, length, out[iy], ix, min(windows, cols - ix))
+
+    return walk
+
+
+@functools.lru_cache(maxsize=None)
+def _hog_rows_walk(rows):
+    """A jitted walk of the HOG window-dot block scoring 12 window rows of 128
+    positions, ``rows`` window rows a call (three channels of 36 features)."""
+    from numba import njit
+
+    dots = score._window_dots(rows)
+
+    @njit(nogil=True)
+    def walk(weights, blocks, stride, second, channels, per_channel, acc, n_rows):
+        features = channels * per_channel
+        for group in range(0, n_rows, rows):
+            for chunk in range(0, stride, 16):
+                dots(weights, group * features, features, blocks, stride, chunk, second,
+                     channels, per_channel, acc, group * stride + chunk, stride)
+
+    return walk
+
+
+class WindowDotBlocks:
+    """The window-score blocks in the forms a CPU may take (all give the same bits).
+
+    ``spatial``: the default spatial rows (96 elements) dotted by the general
+    block or by the one with each row written out (the detector takes the
+    latter); ``hog rows N``: a block row's HOG features dotted with N window
+    rows at once (the detector takes four with AVX-512, three with AVX2, one
+    without).  Timing both forms on the machine at hand checks the choices."""
+
+    params = (["spatial general", "spatial rows written out", "hog rows 1", "hog rows 2",
+               "hog rows 3", "hog rows 4"],)
+    param_names = ("block",)
+
+    def setup(self, block):
+        rng = np.random.default_rng(0)
+        if block.startswith("spatial"):
+            image = rng.normal(size=(66, 640 * 3)).astype(np.float32)
+            weights = rng.normal(size=(32, score.SPATIAL_ROW)).astype(np.float32)
+            self.args = (image, weights, 8, 24, np.zeros((4, 77), np.float32))
+            self.walk = _spatial_grid_walk(block.endswith("written out"))
+        else:
+            channels, per_channel, stride, n_rows = 3, 36, 128, 12
+            self.args = (rng.normal(size=n_rows * channels * per_channel).astype(np.float32),
+                         rng.normal(size=channels * per_channel * stride + 16).astype(np.float32),
+                         stride, rng.random(channels * stride + 16).astype(np.float32),
+                         channels, per_channel, np.zeros(n_rows * stride + 16, np.float32),
+                         n_rows)
+            self.walk = _hog_rows_walk(int(block.split()[-1]))
+        self.walk(*self.args)
+
+    def time_window_dots(self, block):
         self.walk(*self.args)
 
 
