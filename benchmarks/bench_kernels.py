@@ -107,15 +107,14 @@ class CellBlockOrders:
 
 
 @functools.lru_cache(maxsize=None)
-def _spatial_grid_walk(fixed):
-    """A jitted walk of the spatial dot block over a grid of windows, four a
-    call: the block for the default 96-element rows (``fixed``) or the general
-    one.  Not cached on disk, like :func:`_group_blocks_over_image`."""
+def spatial_grid_walk(fixed, windows=score._DOT_WINDOWS):
+    """A jitted walk of the spatial dot block over a grid of windows,
+    ``windows`` a call: the block for the default 96-element rows (``fixed``)
+    or the general one.  Not cached on disk, like
+    :func:`_group_blocks_over_image`; the tests compare the two with it."""
     from numba import njit
 
-    dots = score._row_window_dots(score._DOT_WINDOWS,
-                                  score.SPATIAL_ROW if fixed else None)
-    windows = score._DOT_WINDOWS
+    dots = score._row_window_dots(windows, score.SPATIAL_ROW if fixed else None)
 
     @njit(nogil=True)
     def walk(image2d, weights2d, step_rows, step_cols, out):
@@ -168,7 +167,7 @@ class WindowDotBlocks:
             image = rng.normal(size=(66, 640 * 3)).astype(np.float32)
             weights = rng.normal(size=(32, score.SPATIAL_ROW)).astype(np.float32)
             self.args = (image, weights, 8, 24, np.zeros((4, 77), np.float32))
-            self.walk = _spatial_grid_walk(block.endswith("written out"))
+            self.walk = spatial_grid_walk(block.endswith("written out"))
         else:
             channels, per_channel, stride, n_rows = 3, 36, 128, 12
             self.args = (rng.normal(size=n_rows * channels * per_channel).astype(np.float32),

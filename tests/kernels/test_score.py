@@ -4,6 +4,9 @@ slicing + ``np.dot`` / ``np.sum`` in float64 (``naive.py``)."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -11,6 +14,11 @@ from fastdet.kernels.colour import colour_maps
 from fastdet.kernels.score import (add_hog_scores, add_spatial_scores, add_tile_window_sums,
                                    window_count)
 from naive import (naive_tile_weight_sums, naive_tile_window_sums, naive_window_sums)
+
+# benchmarks/ (not an installed package) holds the walks that compare block forms.
+ROOT = Path(__file__).resolve().parents[2]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
 
 RTOL = 1e-4
 
@@ -129,37 +137,21 @@ def test_add_spatial_scores_matches_naive(parallel, map_shape, size, step):
     assert_scores_close(out, expected, 255 * np.abs(weights).sum())
 
 
-def _window_row_walk(dots, windows):
-    """Every window of a grid dotted by the block ``dots``, ``windows`` at a time."""
-    from numba import njit
-
-    @njit(nogil=True)
-    def walk(image2d, weights2d, step_rows, step_cols, out):
-        rows, length = weights2d.shape
-        image_flat, weights_flat = image2d.ravel(), weights2d.ravel()
-        for iy in range(out.shape[0]):
-            cols = out.shape[1]
-            for ix in range(0, cols, windows):
-                dots(image_flat, image2d.shape[1], iy * step_rows, ix * step_cols, step_cols,
-                     weights_flat, rows, length, out[iy], ix, min(windows, cols - ix))
-
-    return walk
-
-
 @pytest.mark.parametrize("windows", [1, 3, 4])
 def test_the_spatial_rows_block_gives_the_general_blocks_bits(windows):
     """The block for the default spatial rows (96 elements) writes each row's
     products out in full; each window's sum must keep the general block's
     order, bit for bit (windows 1-4 a call, a last call with fewer)."""
-    from fastdet.kernels.score import SPATIAL_ROW, _row_window_dots
+    from benchmarks.bench_kernels import spatial_grid_walk
+    from fastdet.kernels.score import SPATIAL_ROW
 
     rng = np.random.default_rng(windows)
     image = rng.normal(size=(70, 61 * 3 + SPATIAL_ROW)).astype(np.float32)
     weights = rng.normal(size=(32, SPATIAL_ROW)).astype(np.float32)
     grids = []
-    for fixed in (None, SPATIAL_ROW):
+    for fixed in (False, True):
         out = np.zeros((5, 23), np.float32)
-        _window_row_walk(_row_window_dots(windows, fixed), windows)(image, weights, 9, 6, out)
+        spatial_grid_walk(fixed, windows)(image, weights, 9, 6, out)
         grids.append(out)
     np.testing.assert_array_equal(grids[1], grids[0])
     expected = np.array([[np.dot(image[iy * 9:iy * 9 + 32, ix * 6:ix * 6 + SPATIAL_ROW].ravel()
