@@ -180,6 +180,20 @@ def _hog_panel_px(image_shape, options):
     return panel_w, int(round(panel_w * aspect))
 
 
+def glyph_cell_px(cells_shape, panel_px, ppc):
+    """Side in pixels of a rendered cell of :func:`hog_glyphs` in a panel of ``panel_px``.
+
+    Enough pixels per cell to fill the panel along the side that has fewer
+    per cell, and at least one cell's own pixels: the glyph picture is then
+    at most about the panel's size, or the image's, whichever is larger.  Sized
+    by the width alone, a 10000x10 image's 1250 cells got 480 pixels each, a
+    600000x480 picture built from 2.6 GB of stamps.
+    """
+    rows, cols = cells_shape[:2]
+    panel_w, panel_h = panel_px
+    return max(ppc, math.ceil(min(panel_w / cols, panel_h / rows)))
+
+
 def hog_figure_size(image_shape, options):
     """``(width, height)`` in pixels of :func:`hog_figure` for an image of ``image_shape``.
 
@@ -237,7 +251,7 @@ def hog_figure(image_bgr, options, path):
     # picture the same way so image and glyphs line up.
     covered = image_bgr[:cells.shape[0] * ppc, :cells.shape[1] * ppc]
     show_image(panel(0), rgb(covered), f"image {image_bgr.shape[1]}x{image_bgr.shape[0]}")
-    cell_px = max(ppc, math.ceil(panel_w / cells.shape[1]))
+    cell_px = glyph_cell_px(cells.shape, (panel_w, panel_h), ppc)
     for index, name in enumerate(names, start=1):
         axes = panel(index)
         axes.imshow(hog_glyphs(cells[:, :, index - 1], cell_px), cmap="gray", vmin=0, vmax=1,

@@ -21,6 +21,7 @@ from fastdet.detector.features import FeatureLayout, FeatureOptions
 from fastdet.detector.model import Model
 from fastdet.errors import InputError, MissingExtraError, ModelError
 from fastdet.viz.data_figures import (
+    glyph_cell_px,
     FEATURES_FIGURE_SIZE,
     hog_figure,
     hog_glyphs,
@@ -105,6 +106,37 @@ def test_hog_of_a_crop(model_path, crop_path, tmp_path):
     run_viz(["hog", crop_path, "--model", model_path, "--out", out])
     # Image + Y, Cr, Cb glyphs in a 2x2 grid of 480-pixel panels.
     assert_figure(out, (960, 1060))
+
+
+@pytest.mark.parametrize("cells_shape, panel, expected", [
+    ((8, 8), (480, 480), 60),         # a 64x64 crop: as before
+    ((90, 160), (1280, 720), 8),      # a 1280x720 frame: as before
+    ((1250, 1), (480, 1920), 8),      # a 10000x10 image: was 480 a cell
+    ((1, 1250), (1280, 320), 8),
+    ((1, 1), (480, 480), 480),
+])
+def test_glyph_cells_fit_the_panel(cells_shape, panel, expected):
+    assert glyph_cell_px(cells_shape, panel, 8) == expected
+
+
+def test_glyph_picture_is_at_most_about_the_panel_or_the_image():
+    """At most 1.27 x the panel's pixels (the cell side rounded up, from over 8), or 8 pixels
+    a cell, whatever the image's shape."""
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        rows, cols = (int(v) for v in rng.integers(1, 3000, 2))
+        panel = (int(rng.integers(480, 1281)), int(rng.integers(120, 5121)))
+        side = glyph_cell_px((rows, cols), panel, 8)
+        assert side >= 8
+        assert rows * cols * side ** 2 <= max(1.27 * panel[0] * panel[1], rows * cols * 64)
+
+
+def test_hog_of_a_tall_thin_image(tmp_path):
+    """10 pixels wide: the glyphs were sized by the width alone (a 2.6 GB stamp array)."""
+    image = np.random.default_rng(1).integers(0, 256, (4000, 10, 3), dtype=np.uint8)
+    out = tmp_path / "tall.png"
+    hog_figure(image, FeatureOptions(hog_channel="gray"), out)
+    assert_figure(out, (960, 1990))
 
 
 def test_hog_of_one_channel(crop_path, tmp_path):
