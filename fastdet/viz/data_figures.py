@@ -186,8 +186,8 @@ def glyph_cell_px(cells_shape, panel_px, ppc):
     Enough pixels per cell to fill the panel along the side that has fewer
     per cell, and at least one cell's own pixels: the glyph picture is then
     at most about the panel's size, or the image's, whichever is larger.  Sized
-    by the width alone, a 10000x10 image's 1250 cells got 480 pixels each, a
-    600000x480 picture built from 2.6 GB of stamps.
+    by the width alone, the 1250 cells of an image 10 pixels wide and 10000 tall
+    got 480 pixels each: a 600000x480 picture built from 2.6 GB of stamps.
     """
     rows, cols = cells_shape[:2]
     panel_w, panel_h = panel_px

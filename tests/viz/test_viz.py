@@ -21,8 +21,8 @@ from fastdet.detector.features import FeatureLayout, FeatureOptions
 from fastdet.detector.model import Model
 from fastdet.errors import InputError, MissingExtraError, ModelError
 from fastdet.viz.data_figures import (
-    glyph_cell_px,
     FEATURES_FIGURE_SIZE,
+    glyph_cell_px,
     hog_figure,
     hog_glyphs,
     samples_figure,
@@ -111,7 +111,7 @@ def test_hog_of_a_crop(model_path, crop_path, tmp_path):
 @pytest.mark.parametrize("cells_shape, panel, expected", [
     ((8, 8), (480, 480), 60),         # a 64x64 crop: as before
     ((90, 160), (1280, 720), 8),      # a 1280x720 frame: as before
-    ((1250, 1), (480, 1920), 8),      # a 10000x10 image: was 480 a cell
+    ((1250, 1), (480, 1920), 8),      # 10 pixels wide, 10000 tall: was 480 a cell
     ((1, 1250), (1280, 320), 8),
     ((1, 1), (480, 480), 480),
 ])
