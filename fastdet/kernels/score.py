@@ -143,13 +143,13 @@ def _row_window_dots(windows, fixed_length=None):
         def row(r, values):
             # values: per window, _DOT_CHAINS vector sums and a scalar one.
             per = _DOT_CHAINS + 1
-            sums = [list(values[i * per:i * per + _DOT_CHAINS]) for i in range(windows)]
-            tails = [values[i * per + _DOT_CHAINS] for i in range(windows)]
             start = builder.mul(builder.add(top, r), row_len)
             bases = [builder.add(start, x) for x in lefts]
             w_base = builder.mul(r, n)
             if fixed_length is not None:
                 return fixed_row(bases, w_base, values)
+            sums = [list(values[i * per:i * per + _DOT_CHAINS]) for i in range(windows)]
+            tails = [values[i * per + _DOT_CHAINS] for i in range(windows)]
 
             def turn(q, flat):
                 offset = builder.mul(q, per_turn)
