@@ -61,23 +61,37 @@ def _add_to_every_verb(parser):
 
 
 class _Parser(argparse.ArgumentParser):
-    """An argument parser that takes options only as spelt in full.
+    """An argument parser that takes options only as spelt in full, and whose
+    verbs report their own usage errors.
 
     With argparse's prefix matching, ``fastdet detect --out x.jpg`` was
     ``--out-dir x.jpg`` and made a folder named ``x.jpg``; an option given
     as a prefix is now an unrecognised argument.  The verbs' parsers are of
     this class too (``add_subparsers`` makes them of its parser's class).
+
+    ``verb``: a verb's parser refuses arguments it does not know itself, with
+    its own usage (``usage: fastdet detect ...``).  argparse hands them up
+    to the top-level parser, which printed the usage of ``fastdet`` alone,
+    not of the verb that was given them.
     """
 
-    def __init__(self, *args, **kwargs):
+    def __init__(self, *args, verb=True, **kwargs):
         kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
+        self.verb = verb
+
+    def parse_known_args(self, args=None, namespace=None):
+        namespace, extras = super().parse_known_args(args, namespace)
+        if extras and self.verb:
+            self.error("unrecognized arguments: " + " ".join(extras))
+        return namespace, extras
 
 
 def build_parser():
     """The argument parser of the ``fastdet`` command."""
     parser = _Parser(
-        prog="fastdet", description="Fast classical vehicle detection (HOG + linear SVM).")
+        prog="fastdet", description="Fast classical vehicle detection (HOG + linear SVM).",
+        verb=False)
     _add_global_options(parser, False)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add_verb in (add_detect_parser, add_eval_parser, add_train_parser, add_mine_parser,

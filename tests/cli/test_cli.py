@@ -76,8 +76,23 @@ def test_an_option_given_by_a_prefix_is_refused(capsys, image, tmp_path, verb, p
     with pytest.raises(SystemExit) as stop:
         main([verb, str(image), prefix, str(target)])
     assert stop.value.code == 2
-    assert f"unrecognized arguments: {prefix} {target}" in capsys.readouterr().err
+    assert f"fastdet {verb}: error: unrecognized arguments: {prefix} {target}" \
+        in capsys.readouterr().err
     assert not target.exists()
+
+
+@pytest.mark.parametrize("verb", [["detect"], ["run"], ["viz", "hog"], ["batch", "--out-dir", "o"]])
+def test_an_unknown_option_is_refused_with_the_verbs_usage(capsys, verb):
+    """argparse hands a verb's unknown arguments up to the top-level parser,
+    which printed ``fastdet``'s usage, not the verb's."""
+    name = " ".join(word for word in verb if word not in ("--out-dir", "o"))
+    with pytest.raises(SystemExit) as stop:
+        main([*verb, "input", "--no-such-option", "7"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"usage: fastdet {name} ")
+    assert err.rstrip().endswith(
+        f"fastdet {name}: error: unrecognized arguments: --no-such-option 7")
 
 
 def test_detect_missing_image(capsys, model_path, tmp_path):
