@@ -75,15 +75,23 @@ def cmd_eval(args):
         return 0
     print(f"images {len(annotations)}  vehicles {report.n_gt}  "
           f"TP {report.tp}  FP {report.fp}  FN {report.fn}")
-    print(f"precision {report.precision:.3f}  recall {report.recall:.3f}  "
-          f"AP{int(args.iou * 100)} {report.ap:.3f}  mean IoU {report.mean_iou:.3f}  "
-          f"IoU 10th percentile {report.iou_p10:.3f}")
+    shown = _figures(report.to_dict(per_image=False))
+    print(f"precision {shown['precision']}  recall {shown['recall']}  "
+          f"AP{int(args.iou * 100)} {shown['ap']}  mean IoU {shown['mean_iou']}  "
+          f"IoU 10th percentile {shown['iou_p10']}")
     print(_errors_lines(report.errors, args.iou))
     if tracking is not None:
-        print(f"MOTA {tracking.mota:.3f}  IDF1 {tracking.idf1:.3f}  "
+        shown = _figures(tracking.to_dict())
+        print(f"MOTA {shown['mota']}  IDF1 {shown['idf1']}  "
               f"ID switches {tracking.id_switches}  fragmentations {tracking.fragmentations}  "
-              f"MOTP (IoU) {tracking.motp:.3f}  vehicles {tracking.vehicles}")
+              f"MOTP (IoU) {shown['motp']}  vehicles {tracking.vehicles}")
     return 0
+
+
+def _figures(summary):
+    """A report's figures as printed: three decimals, ``n/a`` where undefined (``None``)."""
+    return {name: "n/a" if value is None else f"{value:.3f}" if isinstance(value, float)
+            else value for name, value in summary.items()}
 
 
 def _errors_lines(errors, iou_threshold):

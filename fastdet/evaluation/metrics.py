@@ -97,13 +97,17 @@ class EvalReport:
 
     Notes
     -----
-    Ratios without a denominator are defined so that the report stays finite
-    (and JSON-friendly):
+    Ratios without a denominator are given values so that the attributes
+    stay finite numbers a search can rank (``fastdet tune``):
 
     * no predictions: ``precision = 1.0`` (no wrong claims were made);
     * no non-difficult ground truth: ``recall = 1.0`` (nothing was missed)
       and ``ap = 0.0`` (AP is undefined; 0 never flatters);
     * no true positives: ``mean_iou = iou_p10 = 0.0``.
+
+    :meth:`undefined` names them; :meth:`to_dict` gives them as ``None``
+    and ``fastdet eval`` prints them as ``n/a``, so a report of frames
+    without vehicles does not read as a perfect recall and a zero AP.
     """
 
     precision: float
@@ -121,8 +125,27 @@ class EvalReport:
     errors: dict = field(default_factory=dict)
     per_image: dict = field(default_factory=dict, repr=False)
 
+    def undefined(self):
+        """The figures that have no denominator here (see Notes), as a set of names.
+
+        Returns
+        -------
+        set of str
+            ``"precision"`` without predictions, ``"recall"`` and ``"ap"``
+            without non-difficult ground truth, ``"mean_iou"`` and
+            ``"iou_p10"`` without true positives.
+        """
+        names = set()
+        if self.tp + self.fp == 0:
+            names.add("precision")
+        if self.n_gt == 0:
+            names.update(("recall", "ap"))
+        if self.tp == 0:
+            names.update(("mean_iou", "iou_p10"))
+        return names
+
     def to_dict(self, per_image=True):
-        """JSON-ready summary, optionally with per-image counts.
+        """JSON-ready summary (``None`` for each of :meth:`undefined`), optionally with per-image counts.
 
         Parameters
         ----------
@@ -135,7 +158,8 @@ class EvalReport:
         -------
         dict
         """
-        summary = {name: getattr(self, name) for name in
+        undefined = self.undefined()
+        summary = {name: None if name in undefined else getattr(self, name) for name in
                    ("precision", "recall", "ap", "mean_iou", "iou_p10", "tp", "fp", "fn", "n_gt",
                     "ignored", "iou_threshold", "difficult_cover", "errors")}
         if per_image:

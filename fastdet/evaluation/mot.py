@@ -53,7 +53,8 @@ class TrackingReport:
         + ID switches) / vehicles``.
     motp : float
         Mean IoU of the matched pairs (py-motmetrics reports the mean
-        distance ``1 - IoU``; this is its complement).
+        distance ``1 - IoU``; this is its complement); NaN without a
+        matched pair, as MOTA without vehicles.
     idf1 : float
         F1 score of identity-preserving matches over the whole video.
     id_switches, fragmentations : int
@@ -149,7 +150,7 @@ def tracking_metrics(tracks, annotations, iou_threshold=0.5, difficult_cover=DIF
     matched = int(summary["num_objects"] - summary["num_misses"])
     return TrackingReport(
         mota=float(summary["mota"]),
-        motp=1.0 - float(summary["motp"]) if matched else 0.0,
+        motp=1.0 - float(summary["motp"]) if matched else math.nan,
         idf1=float(summary["idf1"]),
         id_switches=int(summary["num_switches"]),
         fragmentations=int(summary["num_fragmentations"]),

@@ -140,8 +140,11 @@ def test_eval_prints_the_four_figures(capsys, model_path, data_dir):
                  "--json", "--threads", "1"])
     assert code == 0
     report = json.loads(capsys.readouterr().out)
+    # The test model may find nothing: then precision and IoU have no denominator.
+    assert (report["precision"] is None) == (report["tp"] + report["fp"] == 0)
+    assert (report["mean_iou"] is None) == (report["tp"] == 0)
     for key in ("precision", "recall", "ap", "mean_iou"):
-        assert 0.0 <= report[key] <= 1.0
+        assert report[key] is None or 0.0 <= report[key] <= 1.0
     errors = report["errors"]
     assert sum(errors["false_positives"].values()) == report["fp"]
     assert errors["misses"]["near"] + errors["misses"]["missed"] == report["fn"]
@@ -168,6 +171,21 @@ def test_eval_voc_switch_selects_the_plain_rule(capsys, data_dir):
     # rule itself is tested in tests/evaluation).
     assert voc["fp"] - default["fp"] == default["ignored"] - voc["ignored"] >= 0
     assert voc["tp"] == default["tp"]
+
+
+def test_eval_says_n_a_for_figures_without_a_denominator(capsys, data_dir, tmp_path):
+    """Frames without vehicles read as recall 1.000 and AP 0.000 before."""
+    images = data_dir / "test_images"
+    annotations = tmp_path / "empty.json"
+    annotations.write_text(json.dumps({"images": {"test1.jpg": []}}))
+    assert main(["eval", str(annotations), str(images), "--threads", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("images 1  vehicles 0  TP 0  FP 2")
+    assert lines[1] == ("precision 0.000  recall n/a  AP50 n/a  mean IoU n/a  "
+                        "IoU 10th percentile n/a")
+    assert main(["eval", str(annotations), str(images), "--threads", "1", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["precision"], report["recall"], report["ap"]) == (0.0, None, None)
 
 
 def test_eval_missing_annotations(capsys, model_path, tmp_path):

@@ -268,6 +268,10 @@ def test_evaluate_without_predictions():
     assert report.recall == 0.0
     assert report.ap == 0.0
     assert report.mean_iou == report.iou_p10 == 0.0
+    assert report.undefined() == {"precision", "mean_iou", "iou_p10"}
+    summary = report.to_dict()
+    assert summary["precision"] is summary["mean_iou"] is summary["iou_p10"] is None
+    assert (summary["recall"], summary["ap"]) == (0.0, 0.0)   # defined: nothing found
 
 
 def test_evaluate_without_ground_truth():
@@ -276,7 +280,20 @@ def test_evaluate_without_ground_truth():
     assert (report.tp, report.fp, report.fn, report.n_gt, report.ignored) == (0, 0, 0, 0, 1)
     assert report.precision == 1.0
     assert report.recall == 1.0  # nothing to find
-    assert report.ap == 0.0      # undefined, reported as 0
+    assert report.ap == 0.0      # undefined, 0 for a search to rank
+    assert report.undefined() == {"precision", "recall", "ap", "mean_iou", "iou_p10"}
+    assert json.loads(json.dumps(report.to_dict()))["recall"] is None
+
+
+def test_only_figures_without_a_denominator_are_undefined():
+    annotations = {"a.jpg": [car([0, 0, 10, 10])], "b.jpg": []}
+    found = evaluate({"a.jpg": ([[0, 0, 10, 10]], [0.5])}, annotations)
+    assert found.undefined() == set()
+    assert None not in found.to_dict(per_image=False).values()
+    # A false box alone: precision 0 and AP 0 are figures, the IoU of no match is not.
+    false = evaluate({"b.jpg": ([[0, 0, 10, 10]], [0.5])}, annotations)
+    assert false.undefined() == {"mean_iou", "iou_p10"}
+    assert (false.precision, false.recall, false.ap) == (0.0, 0.0, 0.0)
 
 
 def test_evaluate_rejects_unannotated_images():

@@ -87,6 +87,7 @@ def test_frames_without_vehicles():
     report = tracking_metrics(tracks_of([(A, 1)]), {"frame0": []})
     assert report.false_positives == 1 and report.objects == 0
     assert report.to_dict()["mota"] is None  # undefined, and JSON has no NaN
+    assert report.to_dict()["motp"] is None  # no matched pair to average
 
 
 def test_missing_frames_count_as_empty_and_unknown_frames_are_refused():
