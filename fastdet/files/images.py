@@ -121,8 +121,16 @@ def read_image(path):
     return image
 
 
+#: Formats that hold one channel only (OpenCV refuses a colour image for
+#: them): a colour image is written to them in grey.
+GREY_ONLY_SUFFIXES = (".pgm", ".pbm")
+
+
 def write_image(path, image):
     """Write an image atomically; the format follows ``path``'s suffix.
+
+    A colour image written to a format that holds only grey
+    (:data:`GREY_ONLY_SUFFIXES`) is converted to grey first.
 
     Raises
     ------
@@ -130,13 +138,36 @@ def write_image(path, image):
         When OpenCV cannot encode the suffix's format, or the file cannot be
         written (a full disk, a read-only folder).
     """
-    if not cv2.haveImageWriter(str(path)):
+    suffix = Path(path).suffix
+    # cv2.haveImageWriter looks only at the suffix, and it crashed the
+    # process (a segmentation fault) on a name that is not valid UTF-8.
+    if not suffix.isascii() or not cv2.haveImageWriter("image" + suffix):
         raise InputError(f"cannot write image {path}: OpenCV has no writer for "
-                         f"{Path(path).suffix or 'a name without a suffix'!r}")
+                         f"{suffix or 'a name without a suffix'!r}")
+    image = np.ascontiguousarray(image)
+    if suffix.lower() in GREY_ONLY_SUFFIXES and image.ndim == 3 and image.shape[2] == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     # Encoded in memory and written by Python, so a full disk is an OSError
-    # (named by atomic_path) rather than an encoder's silent failure.
-    encoded, data = cv2.imencode(Path(path).suffix, np.ascontiguousarray(image))
+    # (named by atomic_path) rather than an encoder's silent failure.  What
+    # the encoder says on stderr becomes part of the one-line error.
+    with _NativeStderr() as complaints:
+        try:
+            encoded, data = cv2.imencode(suffix, image)
+        except cv2.error:
+            encoded = False
     if not encoded:
-        raise InputError(f"cannot write image {path}: OpenCV could not encode it")
+        reasons = [_encoder_reason(line) for line in complaints.text.splitlines() if line.strip()]
+        detail = f" ({reasons[0]})" if reasons else ""
+        raise InputError(f"cannot write image {path}: OpenCV could not encode it{detail}")
     with atomic_path(path) as tmp:
         tmp.write_bytes(data.tobytes())
+
+
+def _encoder_reason(line):
+    """The reason in one of OpenCV's log lines, without its location prefixes."""
+    line = " ".join(line.split())
+    if ") " in line and "error: (" in line:     # "... error: (-5:Bad argument) WHY in function 'f'"
+        line = line.split("error: (", 1)[1].split(") ", 1)[1]
+    elif "errorLogCallback " in line:
+        line = line.split("errorLogCallback ", 1)[1]
+    return line.split(" in function ")[0]
