@@ -42,6 +42,8 @@ def load_annotations(path):
     dict of str to list of dict
         Image name to its objects, each normalised to
         ``{"box": [float x4], "label": str, "difficult": bool, "id": int or None}``.
+        Within an image each id names one vehicle, and no two names are one
+        video frame (``frame1`` and ``frame01``).
 
     Raises
     ------
@@ -51,11 +53,25 @@ def load_annotations(path):
     """
     path, data = _read(path)
     annotations = {}
+    frames = {}
     for image_name, objects in data["images"].items():
         if not isinstance(objects, list):
             raise InputError(f"{path}: images[{image_name!r}] must be a list of objects")
-        annotations[image_name] = [_parse_object(obj, f"{path}: images[{image_name!r}][{index}]")
-                                   for index, obj in enumerate(objects)]
+        # "frame1" and "frame01" are one video frame: one of them would be
+        # scored against the frame's detections and the other against none.
+        number = frame_number(image_name)
+        if number is not None and frames.setdefault(number, image_name) != image_name:
+            raise InputError(f"{path}: images {frames[number]!r} and {image_name!r} are the "
+                             f"same video frame ({number})")
+        parsed = [_parse_object(obj, f"{path}: images[{image_name!r}][{index}]")
+                  for index, obj in enumerate(objects)]
+        # One vehicle, one box a frame: a repeated id made IDF1 exceed 1.
+        ids = [obj["id"] for obj in parsed if obj["id"] is not None]
+        repeated = sorted({vehicle for vehicle in ids if ids.count(vehicle) > 1})
+        if repeated:
+            raise InputError(f"{path}: images[{image_name!r}] has {ids.count(repeated[0])} "
+                             f"vehicles with id {repeated[0]}; an id names one vehicle a frame")
+        annotations[image_name] = parsed
     return annotations
 
 

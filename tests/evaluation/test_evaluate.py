@@ -406,6 +406,14 @@ def test_split_errors(tmp_path, frames, message):
         load_splits(path)
 
 
+def test_ids_may_repeat_across_frames_and_names_may_share_digits(tmp_path):
+    content = {"images": {"frame1": [{"box": [0, 0, 1, 1], "id": 4}, {"box": [2, 2, 3, 3]},
+                                     {"box": [4, 4, 5, 5]}],
+                          "frame10": [{"box": [0, 0, 1, 1], "id": 4}],
+                          "frame1.jpg": [], "a.jpg": []}}
+    assert set(load_annotations(write(tmp_path, content))) == set(content["images"])
+
+
 def test_load_annotations_missing_file(tmp_path):
     with pytest.raises(InputError, match="annotation file not found"):
         load_annotations(tmp_path / "nope.json")
@@ -433,6 +441,12 @@ def test_load_annotations_not_json(tmp_path):
     ({"images": {"a.jpg": [{"box": [0, 0, 1, 1], "label": 3}]}}, "label must be"),
     ({"images": {"a.jpg": [{"box": [0, 0, 1, 1], "id": "seven"}]}}, "id must be an integer"),
     ({"images": {"a.jpg": [{"box": [0, 0, 1, 1], "id": True}]}}, "id must be an integer"),
+    # IDF1 came out as 1.5 with one vehicle boxed twice in a frame.
+    ({"images": {"frame3": [{"box": [0, 0, 1, 1], "id": 1}, {"box": [5, 5, 9, 9], "id": 1}]}},
+     "images\\['frame3'\\] has 2 vehicles with id 1"),
+    # One of them was scored against the frame's detections, the other against none.
+    ({"images": {"frame1": [], "frame01": []}},
+     "images 'frame1' and 'frame01' are the same video frame \\(1\\)"),
 ])
 def test_load_annotations_structure_errors(tmp_path, content, message):
     with pytest.raises(InputError, match=message) as info:
