@@ -39,10 +39,18 @@ def horizon_argument(text):
 
 
 def detector_config(args):
-    """The :class:`DetectorConfig` of ``--config``, with ``--horizon`` applied."""
-    from ..detector.config import load_config, with_search_horizon
+    """The :class:`DetectorConfig` of ``--config``, with ``--horizon`` applied.
 
-    return with_search_horizon(load_config(args.config), getattr(args, "horizon", None))
+    The file's ``[track]`` section is checked too, though only the video
+    verbs use it: one config file serves every verb, and a mistake in it
+    should not pass ``detect`` and ``eval`` only to stop a later ``run``.
+    """
+    from ..detector.config import load_config, with_search_horizon
+    from ..video.config import load_track_config
+
+    config = with_search_horizon(load_config(args.config), getattr(args, "horizon", None))
+    load_track_config(args.config)
+    return config
 
 
 def make_detector(args):

@@ -140,7 +140,9 @@ class WindowConfig:
         if not 0 < self.size <= 1:
             raise ConfigError(f"search.windows.size must be in (0, 1] (a fraction of the frame "
                               f"height), got {self.size!r}")
-        if not (isinstance(self.overlap, (int, float)) and 0 <= self.overlap < 1):
+        # _number refuses bools: ``overlap = false`` was taken as 0.
+        _number("search.windows.overlap", self.overlap)
+        if not 0 <= self.overlap < 1:
             raise ConfigError(f"search.windows.overlap must be in [0, 1), got {self.overlap!r}")
 
 
@@ -270,8 +272,9 @@ class SearchConfig:
         _number("search.margin", self.margin)
         if self.margin < 0:
             raise ConfigError(f"search.margin must be >= 0, got {self.margin!r}")
-        if not (isinstance(self.reach, (int, float)) and not isinstance(self.reach, bool)
-                and self.reach > 0):
+        # ``reach = inf`` passed as "> 0".
+        _number("search.reach", self.reach, "a finite number > 0")
+        if not self.reach > 0:
             raise ConfigError(f"search.reach must be a number > 0, got {self.reach!r}")
 
 

@@ -95,6 +95,20 @@ def test_an_unknown_option_is_refused_with_the_verbs_usage(capsys, verb):
         f"fastdet {name}: error: unrecognized arguments: --no-such-option 7")
 
 
+@pytest.mark.parametrize("verb", ["detect", "eval"])
+def test_a_bad_track_section_is_refused_by_verbs_that_do_not_track(capsys, data_dir, tmp_path,
+                                                                   verb):
+    """One config file serves every verb: its [track] mistakes passed detect and eval."""
+    config = tmp_path / "bad.toml"
+    config.write_text('[track]\nevery = "x"\n')
+    images = data_dir / "test_images"
+    inputs = ([str(images / "test1.jpg")] if verb == "detect"
+              else [str(images / "annotations.json"), str(images)])
+    assert main([verb, *inputs, "--config", str(config), "--threads", "1"]) == EXIT_ERROR
+    message = one_line_error(capsys)
+    assert str(config) in message and "every" in message
+
+
 def test_detect_missing_image(capsys, model_path, tmp_path):
     assert main(["detect", str(tmp_path / "nope.jpg"), "--model", str(model_path)]) == EXIT_ERROR
     assert "not found" in one_line_error(capsys)
