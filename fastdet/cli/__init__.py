@@ -39,7 +39,13 @@ def console_main(argv=None):
         atexit._run_exitfuncs()
         sys.stdout.flush()
         sys.stderr.flush()
-    except BaseException:  # noqa: BLE001 - e.g. a closed pipe: Python's own exit reports it
+    except BrokenPipeError:
+        # What was printed last reached no reader (``fastdet ... | head``):
+        # quiet, as in main() (Python's own exit would print a traceback).
+        from .app import EXIT_BROKEN_PIPE
+
+        os._exit(EXIT_BROKEN_PIPE)
+    except BaseException:  # noqa: BLE001 - Python's own exit reports it
         sys.exit(code)
     os._exit(code)
 

@@ -7,6 +7,8 @@ Exit codes (the bad-input matrix, ``docs/reliability.md``, tests them):
   ``OSError``: bad input, an unwritable output, a full disk), reported as one
   line ``fastdet: error: ...`` on stderr; also argparse's usage errors;
 * 70: an internal error (a bug), reported as one line too;
+* 141: standard output's reader went away (``fastdet eval ... | head``), as
+  for Unix tools that SIGPIPE ends; nothing is printed;
 * 130: interrupted (Ctrl-C); 143: terminated (SIGTERM) (128 + the signal):
   SIGTERM is handled like Ctrl-C by every verb, so a scheduler stopping
   fastdet gets complete outputs or none, never a temporary file left over.
@@ -22,6 +24,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import os
+import select
 import signal
 import sys
 import threading
@@ -41,6 +45,8 @@ from .warmup import add_warmup_parser
 EXIT_ERROR = 2
 EXIT_INTERNAL = 70
 EXIT_INTERRUPTED = 130
+#: 128 + SIGPIPE, the status of a Unix tool whose output's reader went away.
+EXIT_BROKEN_PIPE = 141
 
 
 def _add_global_options(parser, default):
@@ -102,6 +108,32 @@ def build_parser():
     return parser
 
 
+def _stdout_reader_gone():
+    """Whether standard output is a pipe or socket that nobody reads any more.
+
+    Asked of the descriptor itself (``poll`` reports an error on a pipe
+    without readers), so that a broken pipe of anything else (a stream, a
+    helper process) stays an error.
+    """
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(event & (select.POLLERR | select.POLLHUP) for _, event in poller.poll(0))
+    except (OSError, ValueError, AttributeError):   # no descriptor, or no poll here
+        return False
+
+
+def _discard_stdout():
+    """Point standard output at the null device, so that the flush at exit
+    does not report the broken pipe once more."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
 def _one_line(exc):
     return " ".join(str(exc).split()) or type(exc).__name__
 
@@ -159,6 +191,11 @@ def _main(argv):
     except (FastdetError, OSError) as exc:
         if args.debug:
             raise
+        if _stdout_reader_gone():
+            # ``fastdet eval ... | head -2``: the reader stopped on purpose.
+            # Unix tools end quietly then (SIGPIPE), and so does fastdet.
+            _discard_stdout()
+            return EXIT_BROKEN_PIPE
         print(f"fastdet: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_ERROR
     except Exception as exc:  # noqa: BLE001 - a bug: still one line, the traceback on --debug

@@ -1,6 +1,7 @@
 """The command line: output formats, and one-line errors with a non-zero exit."""
 
 import json
+import os
 
 import cv2
 import numpy as np
@@ -107,6 +108,26 @@ def test_a_bad_track_section_is_refused_by_verbs_that_do_not_track(capsys, data_
     assert main([verb, *inputs, "--config", str(config), "--threads", "1"]) == EXIT_ERROR
     message = one_line_error(capsys)
     assert str(config) in message and "every" in message
+
+
+@pytest.mark.parametrize("verb", ["eval", "detect"])
+def test_a_reader_that_goes_away_ends_the_command_quietly(data_dir, verb):
+    """``fastdet eval ... | head -2``: "fastdet: error: [Errno 32] Broken pipe" before."""
+    import subprocess
+    import sys
+
+    images = data_dir / "test_images"
+    inputs = ([str(images / "annotations.json"), str(images)] if verb == "eval"
+              else [str(images / "test1.jpg"), str(images / "test2.jpg")])
+    read_end, write_end = os.pipe()
+    os.close(read_end)          # before the command prints anything
+    try:
+        done = subprocess.run([sys.executable, "-m", "fastdet.cli", verb, *inputs,
+                               "--threads", "1"], stdout=write_end, stderr=subprocess.PIPE,
+                              timeout=300)
+    finally:
+        os.close(write_end)
+    assert (done.returncode, done.stderr.decode()) == (141, "")
 
 
 def test_detect_missing_image(capsys, model_path, tmp_path):
