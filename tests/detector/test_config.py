@@ -121,3 +121,29 @@ def test_missing_config_file(tmp_path):
 def test_track_section_is_left_to_the_tracker(tmp_path):
     config = load_config(write(tmp_path, "[track]\nevery = 5\n"))
     assert config == DetectorConfig()
+
+
+def test_the_readmes_configuration_example_shows_the_defaults():
+    """Its values read as the defaults, and four of them were not (0.5 for -0.5, ...)."""
+    import math
+    import re
+
+    from fastdet.detector.config import tomllib
+
+    readme = (Path(__file__).parents[2] / "README.md").read_text()
+    section = readme[readme.index("## Configuration"):]
+    block = re.search(r"```toml\n(.*?)```", section, re.S).group(1)
+    block = "\n".join(line for line in block.splitlines() if not line.startswith("refine ="))
+    listed = tomllib.loads(block)
+    defaults = DetectorConfig()
+    for name in ("search", "heat", "boxes"):
+        values = dict(listed[name])
+        windows = values.pop("windows", [])
+        for key, value in values.items():
+            expected = getattr(getattr(defaults, name), key)
+            expected = list(expected) if isinstance(expected, tuple) else expected
+            assert value == expected, f"[{name}] {key} = {value!r}, the default is {expected!r}"
+        for window in windows:
+            assert any(math.isclose(window["size"], default.size, abs_tol=1e-4)
+                       and window["overlap"] == default.overlap
+                       for default in defaults.search.windows), window
