@@ -90,7 +90,19 @@ class _Parser(argparse.ArgumentParser):
         namespace, extras = super().parse_known_args(args, namespace)
         if extras and self.verb:
             self.error("unrecognized arguments: " + " ".join(extras))
+        if self.verb:
+            self._refuse_empty_values(namespace)
         return namespace, extras
+
+    def _refuse_empty_values(self, namespace):
+        """No option or input of fastdet means anything as an empty string, and
+        ``detect --out-dir ''`` was taken as no ``--out-dir`` at all."""
+        for action in self._actions:
+            value = getattr(namespace, action.dest, None)
+            values = value if isinstance(value, list) else [value]
+            if any(isinstance(item, str) and not item for item in values):
+                name = "/".join(action.option_strings) or action.metavar or action.dest
+                self.error(f"argument {name}: expected a value, got an empty string")
 
 
 def build_parser():

@@ -130,6 +130,16 @@ def test_a_reader_that_goes_away_ends_the_command_quietly(data_dir, verb):
     assert (done.returncode, done.stderr.decode()) == (141, "")
 
 
+@pytest.mark.parametrize("argv", [["detect", "x.jpg", "--out-dir", ""], ["detect", ""],
+                                  ["run", "v.mp4", "--out", ""], ["eval", "a.json", "", "--json"]])
+def test_an_empty_value_is_refused(capsys, argv):
+    """``detect --out-dir ''`` was taken as no --out-dir: no drawing and no error."""
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    assert "expected a value, got an empty string" in capsys.readouterr().err
+
+
 def test_detect_missing_image(capsys, model_path, tmp_path):
     assert main(["detect", str(tmp_path / "nope.jpg"), "--model", str(model_path)]) == EXIT_ERROR
     assert "not found" in one_line_error(capsys)
