@@ -105,6 +105,16 @@ def cmd_bench(args):
         value = getattr(args, name)
         if value is not None and value < 1:
             raise InputError(f"--{name.replace('_', '-')} must be at least 1, got {value}")
+    if args.reference_frames < 0:
+        raise InputError(f"--reference-frames must be 0 (skip the reference) or more, got "
+                         f"{args.reference_frames}")
+    if args.plot is not None:
+        # The scaling study takes minutes: a name it cannot be drawn to fails first.
+        from ..files.atomic import check_writable
+        from ..viz.figure import check_output_path
+
+        check_output_path(args.plot)
+        check_writable(args.plot)
     if args.video:
         return _video_benchmark(args, log)
     if args.long_run:

@@ -21,8 +21,13 @@ def add_mine_parser(subparsers):
 
 def cmd_mine(args):
     """Save the detector's false hits as 64x64 crops."""
-    from ..training.mine import mine
+    from ..errors import InputError
+    from ..training.mine import check_sources, mine
 
+    # IoU is in [0, 1] and a hit is a negative below --max-iou: 0 keeps none.  NaN fails too.
+    if not 0 < args.max_iou <= 1:
+        raise InputError(f"--max-iou must be in (0, 1], got {args.max_iou}")
+    check_sources(args.sources)
     sources = annotated_sources(args.sources, args.annotations, args.split)
     detector = make_detector(args)
     result = mine(detector, sources, None, args.out, max_iou=args.max_iou)

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import math
+import os
+from pathlib import Path
+
 from ..detector.features import COLOR_CODES, FeatureOptions
 from ..errors import InputError
-from ..files.atomic import check_writable
+from ..files.atomic import check_writable, refuse_overwriting_inputs
 from ..kernels.blocks import NORM_CODES
 from .common import log_to_stderr, message_stream
 
@@ -62,7 +66,10 @@ def cmd_train(args):
     """Train and save a model (or run the ``--compare`` study)."""
     from ..training.train import train
 
+    _check_numbers(args)
+    _refuse_contradictions(args)
     if args.compare:
+        _check_plot(args)
         return _train_compare(args)
     channel = args.hog_channel
     options = FeatureOptions(
@@ -73,8 +80,7 @@ def cmd_train(args):
         spatial_size=args.spatial_size, hist_bins=args.hist_bins, use_hog=not args.no_hog)
     if args.out is None:
         raise InputError("fastdet train needs --out MODEL.npz (or --compare)")
-    check_writable(args.out)
-    check_writable(args.report)
+    _check_outputs(args)
     if args.C:
         C = args.C[0] if len(args.C) == 1 and not args.cv else tuple(args.C)
     else:
@@ -102,6 +108,91 @@ def cmd_train(args):
               f"{figures['test_crops']} crops ({figures['vehicles']} vehicles)", file=messages)
     print(f"model written to {args.out}", file=messages)
     return 0
+
+
+def _check_numbers(args):
+    """Values the fit would reject only after minutes of feature extraction."""
+    for C in args.C or ():
+        if not (math.isfinite(C) and C > 0):    # NaN too
+            raise InputError(f"--C must be a finite number above 0, got {C}")
+    if args.folds < 2:
+        raise InputError(f"--folds must be at least 2 (one fold is the test, the others are "
+                         f"trained on), got {args.folds}")
+
+
+def _refuse_contradictions(args):
+    """Options the chosen mode would silently ignore: refused, so nobody waits for nothing.
+
+    ``--compare`` trains one model per colour space and feature set and keeps
+    none of them, so a model or report to write has no single model to come
+    from; its table takes one C and no source hold-out or extra negatives.
+    """
+    if args.compare:
+        ignored = [option for option, given in (
+            ("--out", args.out is not None), ("--report", args.report is not None),
+            ("--cv", args.cv), ("--source-holdout", args.source_holdout),
+            ("--extra-negatives", bool(args.extra_negatives)),
+            ("several --C values", bool(args.C) and len(args.C) > 1)) if given]
+        if ignored:
+            raise InputError(f"--compare writes no model and trains every combination with one "
+                             f"C: {', '.join(ignored)} cannot be used with it")
+    elif args.plot is not None:
+        raise InputError("--plot draws the --compare table: add --compare, or use --report "
+                         "for a training report")
+
+
+def _check_plot(args):
+    if args.plot is None:
+        return
+    from ..viz.figure import check_output_path
+
+    refuse_overwriting_inputs(args.plot, _dataset_files(args))
+    _refuse_inside_inputs(args.plot, _input_folders(args))
+    check_output_path(args.plot)
+    check_writable(args.plot)
+
+
+def _input_folders(args):
+    data = Path(args.data_dir)
+    return [data / "vehicles", data / "non-vehicles", *(args.extra_negatives or ())]
+
+
+def _dataset_files(args):
+    # Listing is cheap next to training; a data set that cannot be listed is reported by train().
+    from ..training.dataset import list_dataset
+
+    try:
+        return list_dataset(args.data_dir, args.extra_negatives or ()).paths
+    except InputError:
+        return []
+
+
+def _refuse_inside_inputs(output, folders):
+    """Refuse an output inside a training folder: it would replace a crop, or become one."""
+    if output is None or str(output) == "-":
+        return
+    target = Path(os.path.realpath(output))
+    for folder in folders:
+        root = Path(os.path.realpath(folder))
+        if target.is_relative_to(root):
+            raise InputError(f"cannot write {output}: it is inside the training data folder "
+                             f"{folder}; choose a name outside it")
+
+
+def _check_outputs(args):
+    """Every output name checked before training: none replaces an input or the other output."""
+    outputs = [name for name in (args.out, args.report) if name is not None]
+    inputs = _dataset_files(args)
+    for output in outputs:
+        refuse_overwriting_inputs(output, inputs)
+        _refuse_inside_inputs(output, _input_folders(args))
+        check_writable(output)
+    if args.report is not None:
+        from ..viz.figure import check_output_path
+
+        check_output_path(args.report)
+        if os.path.realpath(args.report) == os.path.realpath(args.out):
+            raise InputError(f"--out and --report are both {args.out}: give them two names")
 
 
 def _train_compare(args):

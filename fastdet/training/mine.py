@@ -16,6 +16,7 @@ keeps held-out frames out of the training data.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +32,11 @@ from ..files.images import read_image, write_image
 from ..video.source import VideoSource
 
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mov", ".mkv", ".m4v"}
+
+#: What mining and tuning say when no source has an annotated frame: there is
+#: nothing to learn from, and a tuning table over no frames reads as perfect.
+NO_ANNOTATED_FRAME = ("no annotated frame found in the sources (videos are annotated as "
+                      "'frame<N>', images by file name)")
 
 
 @dataclass
@@ -52,9 +58,7 @@ def annotated_frames(source, annotations):
     annotations : dict
         Image name or ``frame<N>`` -> list of annotation dicts.
     """
-    source = Path(source)
-    if not source.is_file():
-        raise InputError(f"mining source not found: {source}")
+    source = check_source(source)
     if source.suffix.lower() in VIDEO_SUFFIXES:
         # Keys may have any number of digits (frame7 or frame0007).
         wanted = {frame_number(key): key for key in annotations
@@ -62,16 +66,40 @@ def annotated_frames(source, annotations):
         if not wanted:
             return
         last = max(wanted)
+        read = 0
         with VideoSource(source) as video:
             # Frames not annotated are not converted, and mostly not decoded.
             for index, frame in enumerate(video.frames(needed=wanted.__contains__)):
                 if frame is not None and index in wanted:
+                    read += 1
                     yield wanted[index], frame
                 if index >= last:
                     return
-        return
+        # As fastdet eval says it (fastdet.video.evaluate): an annotated frame
+        # past the end is a wrong file or wrong annotations, not a frame to skip.
+        raise InputError(f"{source} ends before its annotated frame {wanted[last]} "
+                         f"({read} of {len(wanted)} annotated frames read)")
     if source.name in annotations:
         yield source.name, read_image(source)
+
+
+def check_source(source):
+    """``source`` as a Path if it is a file to mine or tune on, else a one-line InputError."""
+    source = Path(source)
+    if source.is_dir():
+        raise InputError(f"{source} is a folder: give its images (e.g. {source}/*.jpg) or a "
+                         f"video file as sources")
+    if not source.exists():
+        raise InputError(f"source not found: {source}")
+    if not source.is_file():
+        raise InputError(f"{source} is not a regular file: give images or video files")
+    return source
+
+
+def check_sources(sources):
+    """Check every source before the first frame is searched (a bad last one fails first)."""
+    for source, _ in paired_sources(sources):
+        check_source(source)
 
 
 def paired_sources(sources, annotations=None):
@@ -123,6 +151,16 @@ def background_hits(boxes, vehicles, max_iou=0.1, max_cover=0.5):
     return (iou.max(axis=1) < max_iou) & (cover.max(axis=1) < max_cover)
 
 
+def _missing_folders(folder):
+    """``folder`` and those of its parents that do not exist yet, deepest first."""
+    missing = []
+    folder = Path(folder)
+    while not folder.exists() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    return missing
+
+
 def mine(detector, sources, annotations, out_dir, max_iou=0.1):
     """Save every hit window that overlaps no annotated vehicle.
 
@@ -145,25 +183,38 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
     -------
     MiningResult
     """
+    check_sources(sources)
+    inputs = [source for source, _ in paired_sources(sources)]
+    created = _missing_folders(out_dir)
     out_dir = output_folder(out_dir, "--out")
     frames = hits_total = 0
     saved = []
-    for source, truth_of in paired_sources(sources, annotations):
-        for key, frame in annotated_frames(source, truth_of):
-            frames += 1
-            hits = detector.hits(frame)
-            hits_total += len(hits.scores)
-            truth = np.array([a["box"] for a in truth_of[key]], dtype=np.float64).reshape(-1, 4)
-            negative = background_hits(hits.boxes, truth, max_iou)
-            for n, box in enumerate(hits.boxes[negative]):
-                x1, y1, x2, y2 = (int(v) for v in box)
-                crop = cv2.resize(frame[y1:y2, x1:x2], (WINDOW, WINDOW),
-                                  interpolation=cv2.INTER_AREA)
-                path = output_in_folder(out_dir, f"{Path(source).stem}_{key}_{n:03d}.png")
-                refuse_overwriting_inputs(path, sources)
-                write_image(path, crop)
-                saved.append(path)
-    if frames == 0:
-        raise InputError("no annotated frame found in the sources (videos are annotated as "
-                         "'frame<N>', images by file name)")
+    try:
+        for source, truth_of in paired_sources(sources, annotations):
+            for key, frame in annotated_frames(source, truth_of):
+                frames += 1
+                hits = detector.hits(frame)
+                hits_total += len(hits.scores)
+                truth = np.array([a["box"] for a in truth_of[key]],
+                                 dtype=np.float64).reshape(-1, 4)
+                negative = background_hits(hits.boxes, truth, max_iou)
+                for n, box in enumerate(hits.boxes[negative]):
+                    x1, y1, x2, y2 = (int(v) for v in box)
+                    crop = cv2.resize(frame[y1:y2, x1:x2], (WINDOW, WINDOW),
+                                      interpolation=cv2.INTER_AREA)
+                    path = output_in_folder(out_dir, f"{Path(source).stem}_{key}_{n:03d}.png")
+                    refuse_overwriting_inputs(path, inputs)
+                    write_image(path, crop)
+                    saved.append(path)
+        if frames == 0:
+            raise InputError(NO_ANNOTATED_FRAME)
+    except BaseException:
+        # A failed run leaves no half set of negatives behind, nor a folder it made for them.
+        for path in saved:
+            with contextlib.suppress(OSError):
+                path.unlink()
+        for folder in created:
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
     return MiningResult(frames, hits_total, saved)

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..detector.features import FeatureLayout, FeatureOptions, features_of_crops
 from ..detector.model import Model
+from ..errors import InputError
 from .augment import (
     JITTER_SCALE,
     JITTER_SHIFT,
@@ -187,6 +188,27 @@ def source_holdout(features, labels, sources, flips, C, seed=0, log=None):
     return out
 
 
+def check_source_holdout(labels, sources):
+    """Raise :class:`InputError` unless every source can be held out with both classes left.
+
+    Checked on the listing, before features are extracted: holding out a
+    data set's only source (or the only one with vehicles) leaves nothing,
+    or one class, to fit on.
+    """
+    labels = np.asarray(labels)
+    sources = np.asarray(sources)
+    held_out = sorted(s for s in set(sources.tolist()) if not s.startswith("extra:"))
+    for source in held_out:
+        rest = labels[sources != source]
+        if len(np.unique(rest)) < 2:
+            found = ", ".join(held_out)
+            missing = ("" if not len(rest) else "vehicle " if not rest.any()
+                       else "non-vehicle ")
+            raise InputError(f"--source-holdout trains on the other sources while one is held "
+                             f"out, but without {source} no {missing}crop is left (sources "
+                             f"found: {found})")
+
+
 def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, seed=0,
           extra_negatives=(), log=None, return_test_scores=False, jitter=True,
           photometric=Photometric(), hold_out_sources=False):
@@ -235,6 +257,9 @@ def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, se
     started = time.perf_counter()
     dataset = list_dataset(data_dir, extra_negatives)
     log(f"{len(dataset)} crops ({int(dataset.labels.sum())} vehicles) in {data_dir}")
+    crop_sources = np.array([source_of(g) for g in dataset.groups])
+    if hold_out_sources:
+        check_source_holdout(dataset.labels, crop_sources)
     crops = load_crops(dataset.paths)
     loaded = time.perf_counter()
     features = features_of_crops(crops, options)
@@ -264,8 +289,7 @@ def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, se
     log(f"leak-free split: accuracy {leak_free_report['accuracy']:.4f}")
     sources = None
     if hold_out_sources:
-        sources = source_holdout(features, labels, np.array([source_of(g) for g in dataset.groups]),
-                                 flips, C, seed, log)
+        sources = source_holdout(features, labels, crop_sources, flips, C, seed, log)
 
     report = {
         "data": str(data_dir),

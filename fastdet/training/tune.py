@@ -22,9 +22,9 @@ from ..detector.boxes import BoxFinder
 from ..detector.config import DetectorConfig
 from ..detector.detector import Detector
 from ..detector.scoring import Hits
-from ..errors import ConfigError
+from ..errors import ConfigError, InputError
 from ..evaluation.metrics import evaluate
-from .mine import annotated_frames, paired_sources
+from .mine import NO_ANNOTATED_FRAME, annotated_frames, check_sources, paired_sources
 from .refine import fit_refinement, refinement_samples
 
 #: Box shape corrections searched for the best threshold combinations.
@@ -121,6 +121,7 @@ def tune(model, sources, annotations, base_config=None, grid=None, log=None, jit
     if base.search.auto_horizon:
         raise ConfigError('fastdet tune searches a numeric horizon: set [search] horizon to a '
                           'number, not "auto"')
+    check_sources(sources)
     grid = grid or DEFAULT_GRID
     lowest = min(grid["decision_threshold"])
     lowest_config = dataclasses.replace(
@@ -137,6 +138,8 @@ def tune(model, sources, annotations, base_config=None, grid=None, log=None, jit
                 sample = (number, key) if not shift else (number, key, shift)
                 frames[sample] = (detector.hits(frame), (frame.shape[1], frame.shape[0]), frame)
                 truth[sample] = truth_of[key]
+    if not frames:
+        raise InputError(NO_ANNOTATED_FRAME)
     results = []
     for threshold, heat_threshold, weighting, fraction in itertools.product(
             grid["decision_threshold"], grid["heat_threshold"], grid["weighting"],
@@ -282,21 +285,50 @@ def _evaluate(model, base, frames, truth, threshold, heat_threshold, weighting, 
     return out
 
 
-def as_toml(result):
-    """The ``[search]``, ``[heat]`` and ``[boxes]`` overrides of a tuning result."""
-    return (f"[search]\ndecision_threshold = {result.decision_threshold}\n\n"
-            f"[heat]\nthreshold = {result.heat_threshold}\nweighting = \"{result.weighting}\"\n"
-            f"peak_fraction = {result.peak_fraction}\nsplit_min_size = {result.split_min_size}\n\n"
-            f"[boxes]\nwidth_scale = {result.width_scale}\nheight_scale = {result.height_scale}\n"
-            f"center_dy = {result.center_dy}\n" + _refine_toml(result.refine))
+def tuned_config(base, result):
+    """The :class:`DetectorConfig` a tuning result was scored with: ``base`` with its values."""
+    config = _config(base or DetectorConfig(), result)
+    return dataclasses.replace(config, boxes=dataclasses.replace(config.boxes,
+                                                                 refine=tuple(result.refine)))
 
 
-def _refine_toml(weights):
-    if not weights:
-        # Explicitly none: the default refinement is fitted to the bundled model.
-        return "refine = []\n"
-    rows = ",\n".join("    [" + ", ".join(f"{v:.5f}" for v in row) + "]" for row in weights)
-    return f"refine = [\n{rows},\n]\n"
+def tuned_values(result):
+    """The settings tuning chooses, as nested ``{section: {key: value}}``."""
+    return {
+        "search": {"decision_threshold": result.decision_threshold},
+        "heat": {"threshold": result.heat_threshold, "weighting": result.weighting,
+                 "peak_fraction": result.peak_fraction, "split_min_size": result.split_min_size},
+        # Explicitly none when not refined: the default refinement is fitted to the bundled
+        # model, and the result was scored without it.
+        "boxes": {"width_scale": result.width_scale, "height_scale": result.height_scale,
+                  "center_dy": result.center_dy,
+                  "refine": [list(row) for row in result.refine]},
+    }
+
+
+def as_toml(result, base=None):
+    """A whole TOML config: ``base`` (a parsed config file) with the tuned values merged in.
+
+    Written alone, the tuned keys would lose the base config's windows,
+    horizon, box filters and ``[track]``, and the file would not reproduce
+    the settings the result was scored with.
+    """
+    document = {section: dict(values) if isinstance(values, dict) else values
+                for section, values in (base or {}).items()}
+    for section, values in tuned_values(result).items():
+        document.setdefault(section, {}).update(values)
+    return toml_document(document)
+
+
+def toml_document(document):
+    """Nested dicts (as :func:`tomllib.loads` returns them) as TOML text.
+
+    ``tomli_w`` writes floats so that they read back exactly: the file
+    reproduces the scored setting.
+    """
+    import tomli_w
+
+    return tomli_w.dumps(document)
 
 
 def format_results(results, top=10):
