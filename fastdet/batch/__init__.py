@@ -25,6 +25,7 @@ from pathlib import Path
 from ..files.atomic import output_folder
 from .cluster import batch_client, local_layout
 from .inputs import find_videos
+from .outputs import check_outputs
 from .report import write_report
 from .runner import BatchRun
 from .settings import make_settings
@@ -50,6 +51,7 @@ def run_batch(inputs, out_dir, client=None, *, scheduler=None, scheduler_file=No
     settings = make_settings(threads=1 if threads is None else threads, **run_options)
     out_dir = Path(out_dir)
     videos = find_videos(inputs, exclude=out_dir)
+    check_outputs(videos, out_dir, settings)
     output_folder(out_dir)
     if client is None and scheduler is None and scheduler_file is None:
         workers, threads = local_layout(len(videos), workers, threads, segment is not None)

@@ -43,6 +43,21 @@ class VideoInput:
         return str(PurePosixPath(self.relative).with_suffix(""))
 
 
+def display_name(text):
+    """``text`` (a file name or a message naming files) as printable text.
+
+    A name that is not valid UTF-8 reaches Python with each such byte as a
+    lone surrogate (``surrogateescape``), which neither a UTF-8 terminal,
+    an HTML page nor Dask's messages can encode; here it shows as ``\\xff``.
+    The name itself, with its bytes, is kept for opening the files.
+    """
+    try:
+        raw = os.fsencode(text)
+    except UnicodeEncodeError:   # a surrogate no file name decodes to (an edited manifest)
+        raw = text.encode("utf-8", "backslashreplace")
+    return raw.decode("utf-8", "backslashreplace")
+
+
 def is_video_name(path):
     """Whether ``path``'s suffix is one a folder search takes for a video."""
     return Path(path).suffix.lower() in VIDEO_SUFFIXES

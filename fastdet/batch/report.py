@@ -4,16 +4,20 @@ The page lists every video of the manifest with its thumbnail, frames,
 vehicles, frame rate and status, and the annotated video playing inline (each
 starts when it scrolls into view).  Every text taken from the manifest (file
 names, reasons) is HTML-escaped and every link URL-quoted, so a file named
-``<script>.mp4`` stays a name.
+``<script>.mp4`` stays a name.  A file name that is not UTF-8 is shown with
+its odd bytes as ``\\xff`` (:func:`~fastdet.batch.inputs.display_name`) and
+linked by its bytes (``%FF``), so its link finds the file.
 """
 
 from __future__ import annotations
 
 import html
+import os
 from pathlib import Path
 from urllib.parse import quote
 
 from ..files.atomic import atomic_path
+from .inputs import display_name
 
 REPORT_NAME = "index.html"
 
@@ -65,12 +69,12 @@ def summary_table(records, skipped=(), wall=None):
     -------
     str
     """
-    width = max([len("video")] + [len(r["relative"]) for r in records])
+    width = max([len("video")] + [len(display_name(r["relative"])) for r in records])
     lines = [f"{'video':<{width}}  {'status':<7} {'frames':>7} {'vehicles':>8} {'fps':>7} "
              f"{'seconds':>8}"]
     for record in records:
         status = "skipped" if record["relative"] in skipped else record["status"]
-        lines.append(f"{record['relative']:<{width}}  {status:<7} "
+        lines.append(f"{display_name(record['relative']):<{width}}  {status:<7} "
                      f"{_cell(record.get('frames')):>7} {_cell(record.get('vehicles')):>8} "
                      f"{_cell(record.get('fps'), 1):>7} {_cell(record.get('seconds'), 1):>8}")
     done = [r for r in records if r["status"] == "done" and r["relative"] not in skipped]
@@ -81,36 +85,46 @@ def summary_table(records, skipped=(), wall=None):
     if wall:
         totals += f" in {wall:.1f} s ({frames / wall:.1f} fps over the batch)"
     lines.append(totals)
-    lines += [f"failed: {r['relative']}: {r.get('reason', '')}" for r in failed]
+    lines += [f"failed: {display_name(r['relative'])}: {display_name(r.get('reason', ''))}"
+              for r in failed]
     return "\n".join(lines)
 
 
+def _link(relative):
+    """The URL of an output, relative to the page: the bytes of its name, quoted."""
+    try:
+        return quote(os.fsencode(relative))
+    except UnicodeEncodeError:   # a surrogate no file name decodes to (an edited manifest)
+        return quote(display_name(relative))
+
+
 def _article(record):
-    name = html.escape(record["relative"])
+    name = html.escape(display_name(record["relative"]))
     outputs = record.get("outputs") or {}
     status = record["status"]
-    parts = [f'<article class="video {html.escape(status)}" '
-             f'data-relative="{html.escape(record["relative"], quote=True)}">',
+    parts = [f'<article class="video {html.escape(status)}" data-relative="{name}">',
              f"<h2>{name}</h2>"]
     thumbnail = outputs.get("thumbnail")
-    poster = f' poster="{quote(thumbnail)}"' if thumbnail else ""
+    poster = f' poster="{_link(thumbnail)}"' if thumbnail else ""
     if status == "done" and outputs.get("video"):
-        parts.append(f'<video src="{quote(outputs["video"])}"{poster} muted loop playsinline '
+        parts.append(f'<video src="{_link(outputs["video"])}"{poster} muted loop playsinline '
                      f'controls preload="metadata"></video>')
     elif thumbnail:
-        parts.append(f'<img src="{quote(thumbnail)}" alt="{name}">')
+        parts.append(f'<img src="{_link(thumbnail)}" alt="{name}">')
     rows = [("status", html.escape(status)), ("frames", _cell(record.get("frames"))),
             ("vehicles", _cell(record.get("vehicles"))), ("fps", _cell(record.get("fps"), 1))]
     if thumbnail and status == "done":
-        rows.append(("thumbnail", f'<img class="thumbnail" src="{quote(thumbnail)}" alt="" '
+        rows.append(("thumbnail", f'<img class="thumbnail" src="{_link(thumbnail)}" alt="" '
                                   f'height="36">'))
     if outputs.get("detections"):
-        rows.append(("detections", f'<a href="{quote(outputs["detections"])}">'
-                                   f'{html.escape(Path(outputs["detections"]).name)}</a>'))
+        detections = outputs["detections"]
+        rows.append(("detections", f'<a href="{_link(detections)}">'
+                                   f'{html.escape(display_name(Path(detections).name))}</a>'))
     parts.append("<table>" + "".join(f"<tr><td>{key}</td><td>{value}</td></tr>"
                                      for key, value in rows) + "</table>")
     if status == "failed":
-        parts.append(f'<p class="reason">{html.escape(record.get("reason", ""))}</p>')
+        reason = html.escape(display_name(record.get("reason", "")))
+        parts.append(f'<p class="reason">{reason}</p>')
     parts.append("</article>")
     return "\n".join(parts)
 

@@ -2,7 +2,10 @@
 
 :class:`BatchRun` skips the videos the manifest says are done, submits one
 task per video (or per segment of a long one) to Dask, follows them as they
-finish and appends each video's record to the manifest as soon as it has one.
+finish and appends each video's record to the manifest as soon as it has one;
+a video redone with other outputs (``--no-video``, another ``--format``) then
+loses the outputs its earlier record lists and the new one does not
+(:func:`~fastdet.batch.outputs.remove_replaced`).
 A failed task fails its own video only.  Dask re-runs a task whose worker
 died (``distributed.scheduler.allowed-failures`` times) and one that raised
 an unexpected error (``retries``).  Ctrl-C cancels what is left; every record
@@ -13,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import os
 import time
 import uuid
 from datetime import datetime, timezone
@@ -24,8 +28,10 @@ from .._version import __version__
 from ..errors import InputError
 from ..video.source import VideoSource
 from .boundary import IdMap, compare
+from .inputs import display_name
 from .manifest import Manifest, input_fingerprint, is_up_to_date
-from .outputs import OutputPaths, output_paths, parts_folder, remove_leftovers
+from .outputs import (LOCK_NAME, OutputPaths, output_paths, parts_folder, remove_leftovers,
+                      remove_replaced)
 from .progress import BatchProgress
 from .segments import parse_segment, plan_segments, segment_frames, warmup_frames
 from .split_search import replays_from_hits
@@ -173,8 +179,11 @@ class BatchRun:
                     self._track(new, job, finished)
                 if job.record is not None:
                     self._cancel(job)
+                    earlier = self.manifest.get(job.video.relative)
                     self.manifest.add(job.record)
                     remove_leftovers(job.outputs, job.parts)
+                    if job.record["status"] == "done":
+                        remove_replaced(earlier, self.manifest.records.values(), self.out_dir)
                     bars.video_done()
         except BaseException:
             self.client.cancel([future for future, _ in self._futures.values()])
@@ -195,11 +204,13 @@ class BatchRun:
         one group per kind lets the scheduler learn how long such a task takes
         and spread them over the workers, where a group per video (an unknown
         half-second guess each) left one worker with two videos in a row while
-        another idled.
+        another idled.  Keys (and progress events) travel as msgpack, which
+        refuses the surrogates of a file name that is not UTF-8: they carry the
+        video's :func:`~fastdet.batch.inputs.display_name`.  The task's
+        arguments are pickled, so its paths keep their bytes.
         """
-        return self.client.submit(
-            function, *args, key=f"{function.__name__}-{uuid.uuid4().hex[:8]}-{key}",
-            pure=False, retries=RETRIES)
+        key = f"{function.__name__}-{uuid.uuid4().hex[:8]}-{display_name(key)}"
+        return self.client.submit(function, *args, key=key, pure=False, retries=RETRIES)
 
     def record(self, job, tasks, **values):
         """The manifest record of a finished video (``tasks``: the results of its tasks)."""
@@ -249,7 +260,7 @@ class _WholeVideo:
 
     def start(self):
         job = {"input": str(self.video.path), "outputs": self.outputs.as_dict(),
-               "topic": self.run.topic, "key": self.video.relative}
+               "topic": self.run.topic, "key": display_name(self.video.relative)}
         return [self.run.submit(video_task, self.run.settings.name, job, key=self.video.key)]
 
     def advance(self, key, result):
@@ -308,7 +319,7 @@ class _SegmentedVideo:
         start, end, _ = self.segments[k]
         job = {"input": str(self.video.path), "frame_range": (start, end),
                "hits": str(self._part(k, ".hits.npz")), "topic": self.run.topic,
-               "key": f"{self.video.relative}#{k}"}
+               "key": f"{display_name(self.video.relative)}#{k}"}
         future = self.run.submit(search_task, self.run.settings.name, job,
                                  key=f"{self.video.key}-search{k}")
         self._tags[future.key] = ("search", k)
@@ -358,7 +369,7 @@ class _SegmentedVideo:
                "outputs": OutputPaths(None, self._part(k, ".jsonl"), None).as_dict(),
                "frame_range": (start, end), "warmup": start - self.warm_starts[k],
                "format": "jsonl", "track_order": order, "topic": self.run.topic,
-               "key": f"{self.video.relative}#{k}"}
+               "key": f"{display_name(self.video.relative)}#{k}"}
         future = self.run.submit(video_task, self.run.settings.name, job,
                                  key=f"{self.video.key}-segment{k}")
         self._tags[future.key] = ("detect", k)
@@ -473,11 +484,32 @@ class _SegmentedVideo:
 
 @contextlib.contextmanager
 def _exclusive(out_dir):
-    """Hold ``DIR/.fastdet-batch.lock`` so two batches never write one folder at once."""
+    """Hold ``DIR/.fastdet-batch.lock`` so two batches never write one folder at once.
+
+    The lock is ``flock``'s, which the system releases when its holder dies,
+    and the file is removed at the end while still locked.  A batch that opened
+    the file just before then locks a file gone from the folder, which would
+    exclude nobody: it sees that and opens the lock anew.  A file left behind
+    by a killed batch is unlocked, and harmless.
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / ".fastdet-batch.lock", "w") as handle:
+    path = out_dir / LOCK_NAME
+    while True:
+        handle = open(path, "a")
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
+            handle.close()
             raise InputError(f"another fastdet batch is writing to {out_dir}") from None
+        try:
+            if os.path.samestat(os.fstat(handle.fileno()), os.stat(path)):
+                break
+        except FileNotFoundError:
+            pass
+        handle.close()
+    try:
         yield
+    finally:
+        with contextlib.suppress(OSError):
+            path.unlink()
+        handle.close()

@@ -61,6 +61,7 @@ def add_batch_parser(subparsers):
 def cmd_batch(args):
     """Run the ``batch`` command; returns 0, or 1 when some video failed."""
     from ..batch import run_batch
+    from ..batch.inputs import display_name
     from ..batch.report import summary_table
 
     run = run_batch(args.inputs, args.out_dir, scheduler=args.scheduler,
@@ -73,6 +74,8 @@ def cmd_batch(args):
                     format=args.format, codec=args.codec, crf=args.crf, preset=args.preset,
                     compile_notice=lambda: compile_notice(enabled=not args.quiet))
     print(summary_table(run.records, run.skipped, run.wall))
+    manifest = run.manifest.path
     print(f"{run.workers} workers, set up in {run.setup_seconds:.1f} s; manifest: "
-          f"{run.manifest.path}; report: {run.manifest.path.parent / 'index.html'}", flush=True)
+          f"{display_name(str(manifest))}; report: "
+          f"{display_name(str(manifest.parent / 'index.html'))}", flush=True)
     return EXIT_SOME_FAILED if any(r["status"] == "failed" for r in run.records) else 0
