@@ -827,6 +827,10 @@ class _ReductionPlan:
 def _reduction_plan(lanes, channels, ppc_x, nbins):
     """Plan the pixel sums of a cell block's ``nbins`` x pieces bin vectors.
 
+    Eight lanes and three channels (the colour HOG on AVX2) take
+    :func:`_half_lane_plan`; every other block the greedy plan below.  Both
+    add the same pairs in the same tree, so every plan gives the same bits.
+
     Lane ``l`` of piece ``q`` of a bin vector holds flat-row element
     ``e = q * lanes + l``: pixel ``(e // channels) % ppc_x`` of cell
     ``e // (channels * ppc_x)``, channel ``e % channels``.  Each level pairs
@@ -837,6 +841,8 @@ def _reduction_plan(lanes, channels, ppc_x, nbins):
     concatenated vector, took about five times as many shuffles.
     """
     assert ppc_x & (ppc_x - 1) == 0, "pixels per cell row must be a power of two"
+    if (lanes, channels, ppc_x, _GROUP_CELLS) == (8, 3, 8, 2):
+        return _half_lane_plan(nbins)
     pieces = _GROUP_CELLS * ppc_x * channels // lanes
     where = {}
     for b in range(nbins):
@@ -888,6 +894,49 @@ def _reduction_plan(lanes, channels, ppc_x, nbins):
         index[(b * cells + cell) * channels + c] = v * lanes + lane
     size = (max(where.values())[0] + 1) * lanes
     return _ReductionPlan(levels, index, size)
+
+
+def _half_lane_plan(nbins):
+    """The pixel sums of a colour block's bins with eight lanes, bin by bin.
+
+    A cell row of one channel's pixels is 24 elements, three vectors, and
+    pixel ``p + 4`` lies 12 elements after pixel ``p``: three 128-bit halves
+    on, in the same lane of its half.  So each level's operands are whole
+    halves of two vectors (``vperm2f128``) or the same two-and-two lanes of
+    both halves (``vshufps``), where the greedy plan's arbitrary masks took
+    two or three shuffles each on AVX2, and each bin's sums need only its own
+    six vectors.  Per bin, with ``h0 .. h5`` the halves of a cell's three
+    vectors and ``y(e) = x(e) + x(e + 12)`` (pixel p with p + 4):
+
+    * level 1: per half (cell), ``P = y(0..3)`` (h0 + h3), ``R = y(4..7)``
+      (h1 + h4), ``Y = y(8..11)`` (h2 + h5);
+    * level 2 (pixel p with p + 2): ``U = y(0..2) + y(6..8)`` (pixel 0 of
+      each channel), ``V = y(3..5) + y(9..11)`` (pixel 1);
+    * level 3: ``U + V`` (pixel 0 with 1), the bin's means of both cells in
+      lanes 0-2 and 4-6 (lanes 3 and 7 hold sums nothing reads).
+
+    The same pairs in the same tree as the greedy plan, so the same bits
+    (``tests/kernels/test_cells_fast.py`` checks both, symbolically and on
+    images).
+    """
+    lanes, channels = 8, 3
+    low, high, same = [0, 1, 2, 3, 8, 9, 10, 11], [4, 5, 6, 7, 12, 13, 14, 15], list(range(8))
+    levels = ([], [], [])
+    index = np.empty(nbins * _GROUP_CELLS * channels, dtype=np.int64)
+    for b in range(nbins):
+        q = [b * 6 + piece for piece in range(6)]       # cell 0: q[0..2], cell 1: q[3..5]
+        levels[0].extend([(((q[0], q[3]), low), ((q[1], q[4]), high)),     # P
+                          (((q[0], q[3]), high), ((q[2], q[5]), low)),     # R
+                          (((q[1], q[4]), low), ((q[2], q[5]), high))])    # Y
+        p_, r_, y_ = 3 * b, 3 * b + 1, 3 * b + 2
+        levels[1].extend([(((p_, None), same), ((r_, y_), [2, 3, 8, 8, 6, 7, 12, 12])),  # U
+                          (((p_, r_), [3, 8, 9, 9, 7, 12, 13, 13]),                      # V
+                           ((y_, None), [1, 2, 3, 3, 5, 6, 7, 7]))])
+        levels[2].append((((2 * b, None), same), ((2 * b + 1, None), same)))
+        for cell in range(_GROUP_CELLS):
+            for c in range(channels):
+                index[(b * _GROUP_CELLS + cell) * channels + c] = b * lanes + cell * 4 + c
+    return _ReductionPlan([list(level) for level in levels], index, nbins * lanes)
 
 
 def _group_block(channels, ppc_x, ppc_y, nbins, first, last, lanes=_LANES,

@@ -210,6 +210,59 @@ def _block_kernel(channels, first, last, lanes, mask_then_add, two_pass):
     return run
 
 
+def _planned_sums(plan, lanes, channels, ppc_x=8, nbins=9):
+    """What a plan stores where, symbolically: each sum a set of its two terms
+    (IEEE addition is commutative, so a pair's order does not change a bit)."""
+    pieces = hog._GROUP_CELLS * ppc_x * channels // lanes
+    vectors = [[("x", b, e // (channels * ppc_x), e % channels, (e // channels) % ppc_x)
+                for e in range(q * lanes, (q + 1) * lanes)]
+               for b in range(nbins) for q in range(pieces)]
+    for level in plan.levels:
+        following = []
+        for left, right in level:
+            operands = []
+            for (first_source, second_source), mask in (left, right):
+                a = vectors[first_source]
+                both = a + (a if second_source is None else vectors[second_source])
+                operands.append([both[m] for m in mask])
+            following.append([frozenset(pair) for pair in zip(*operands)])
+        vectors = following
+    return [term for vector in vectors for term in vector]
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+@pytest.mark.parametrize("lanes", [4, 8, 16])
+def test_every_reduction_plan_adds_the_same_pairs_in_the_same_tree(channels, lanes):
+    """((x0 + x4) + (x2 + x6)) + ((x1 + x5) + (x3 + x7)) for every (bin, cell,
+    channel), whatever the plan: so builds of any lane width give the same bits."""
+    plan = hog._reduction_plan(lanes, channels, 8, 9)
+    stored = _planned_sums(plan, lanes, channels)
+    assert plan.size == len(stored)
+    for b in range(9):
+        for cell in range(hog._GROUP_CELLS):
+            for c in range(channels):
+                x = [("x", b, cell, c, p) for p in range(8)]
+                tree = frozenset([frozenset([frozenset([x[0], x[4]]), frozenset([x[2], x[6]])]),
+                                  frozenset([frozenset([x[1], x[5]]), frozenset([x[3], x[7]])])])
+                assert stored[plan.index[(b * hog._GROUP_CELLS + cell) * channels + c]] == tree
+
+
+def test_the_half_lane_plan_is_the_eight_lane_colour_plan():
+    """Its shuffles are whole 128-bit halves or vshufps patterns (the greedy
+    plan's arbitrary masks took two or three shuffles each with AVX2)."""
+    plan = hog._reduction_plan(8, 3, 8, 9)
+    assert len(plan.levels) == 3
+    halves = ([0, 1, 2, 3, 8, 9, 10, 11], [4, 5, 6, 7, 12, 13, 14, 15])
+    for left, right in plan.levels[0]:
+        assert left[1] in halves and right[1] in halves
+    for level in plan.levels[1:]:
+        for shuffles in level:
+            for _, mask in shuffles:
+                # The same pattern in both halves, each lane from its own half.
+                assert [m % 4 for m in mask[4:]] == [m % 4 for m in mask[:4]]
+                assert all((m % 8) // 4 == lane // 4 for lane, m in enumerate(mask))
+
+
 @pytest.mark.parametrize("channels", [1, 3])
 @pytest.mark.parametrize("lanes, mask_then_add", [(4, True), (8, True), (16, False)])
 def test_every_block_variant_gives_the_naive_cells_and_both_orders_agree(channels, lanes,
@@ -241,3 +294,23 @@ def test_every_block_variant_gives_the_naive_cells_and_both_orders_agree(channel
             columns = slice(x_group * hog._GROUP_CELLS, (x_group + 1) * hog._GROUP_CELLS)
             assert_close(cells, expected[:, columns])
         np.testing.assert_array_equal(got[True], got[False])
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_blocks_of_every_lane_width_give_the_same_bits(channels):
+    """The eight-lane colour block has a plan of its own (_half_lane_plan)."""
+    rng = np.random.default_rng(channels)
+    group = hog._GROUP_CELLS * 8
+    image = rng.integers(0, 256, (17, 3 * group, channels), dtype=np.uint8)
+    flat, row_bytes = image.ravel(), 3 * group * channels
+    for first, last, x_group in ((True, False, 0), (False, False, 1), (False, True, 2)):
+        means = []
+        for lanes, mask_then_add in ((4, True), (8, True), (16, False)):
+            plan = hog._reduction_plan(lanes, channels, 8, 9)
+            scratch = np.full(plan.size, np.nan, np.float32)
+            _block_kernel(channels, first, last, lanes, mask_then_add, True)(
+                flat, 17, row_bytes, 8, x_group * group * channels, scratch)
+            means.append(scratch[plan.index])
+        assert not np.isnan(means[0]).any()
+        for other in means[1:]:
+            np.testing.assert_array_equal(other, means[0])
