@@ -19,10 +19,10 @@ from pathlib import Path
 from ..detector.config import DetectorConfig, load_config, with_search_horizon
 from ..detector.model import DEFAULT_MODEL_NAME, load_model, model_from_bytes
 from ..errors import InputError
-from ..video.codecs import DEFAULT_CRF, DEFAULT_PRESET
+from ..video.codecs import DEFAULT_CODEC, DEFAULT_CRF, DEFAULT_PRESET
 from ..video.config import TrackConfig, load_track_config
 from ..video.detection_files import FORMATS
-from ..video.sink import check_encoder
+from ..video.sink import check_encoder, refuse_encoder_options_without_video
 
 #: ``BatchSettings.encoder`` when no --codec, --crf or --preset is given.
 DEFAULT_ENCODER = ("h264", None, None)
@@ -100,7 +100,7 @@ class BatchSettings:
 
 
 def make_settings(model=None, config=None, every=None, track=False, video=True,
-                  detections=True, format=None, threads=1, codec="h264", crf=None,
+                  detections=True, format=None, threads=1, codec=None, crf=None,
                   preset=None, horizon=None):
     """Build and validate :class:`BatchSettings` from ``fastdet run``'s options.
 
@@ -123,7 +123,8 @@ def make_settings(model=None, config=None, every=None, track=False, video=True,
     threads : int
         Detector threads per task.
     codec, crf, preset : str, int, str, optional
-        Encoder of the annotated videos, as ``fastdet run`` takes them.
+        Encoder of the annotated videos, as ``fastdet run`` takes them
+        (default H.264 at its defaults); refused without ``video``.
 
     Raises
     ------
@@ -141,7 +142,12 @@ def make_settings(model=None, config=None, every=None, track=False, video=True,
     if crf is not None and (isinstance(crf, bool) or not isinstance(crf, int)):
         raise InputError(f"--crf must be a whole number, got {crf!r}")
     if video:
+        codec = DEFAULT_CODEC if codec is None else codec
         check_encoder(codec, crf, preset)     # a one-line error here, not on every worker
+    else:
+        # They would decide nothing (as fastdet run without --out refuses them).
+        refuse_encoder_options_without_video(codec, crf, preset, "drop --no-video")
+        codec = DEFAULT_CODEC
     if model is None:
         model_bytes = resources.files("fastdet").joinpath("data", DEFAULT_MODEL_NAME).read_bytes()
     else:

@@ -37,6 +37,8 @@ def add_batch_parser(subparsers):
     batch.add_argument("--no-detections", action="store_true",
                        help="do not write detections files")
     add_encoder_options(batch)
+    # Not given (rather than h264) so that --codec without a video output is refused.
+    batch.set_defaults(codec=None)
     batch.add_argument("--segment", metavar="N|Ns",
                        help="split videos longer than N frames (or N seconds: 30s) into segments "
                             "processed in parallel")

@@ -50,6 +50,8 @@ def add_run_parser(subparsers):
     run.add_argument("--format", choices=FORMATS,
                      help="detections format (default: from FILE's suffix, else jsonl)")
     add_encoder_options(run)
+    # Not given (rather than h264) so that --codec without a video output is refused.
+    run.set_defaults(codec=None)
     run.add_argument("--model", metavar="M", help="model file (.npz); default: bundled model")
     run.add_argument("--config", metavar="C",
                      help="TOML config overriding built-in defaults ([track] for video settings)")
@@ -159,15 +161,22 @@ def cmd_run(args):
         With a one-line message, before any output is created.
     RunInterrupted
         After Ctrl-C or SIGTERM, once both outputs hold every frame processed so far.
+    ReaderGone
+        When an output on standard output lost its reader (``| head``), once
+        the other output holds every frame processed so far.
     """
     from ..video.run import RunInterrupted, process_video, refuse_clashing_outputs
+    from ..video.sink import refuse_encoder_options_without_video
     from ..video.source import VideoSource
+    from ..video.standard_output import ReaderGone, writes_standard_output
 
     verbose = getattr(args, "verbose", False)
     out, detections_path = args.out, args.detections
     announce = out is None and detections_path is None
     if announce:
         out = args.out = default_output(args.video)
+    if out is None:
+        refuse_encoder_options_without_video(args.codec, args.crf, args.preset)
     # Before any work: no output may replace an input or the other output.
     refuse_clashing_outputs(args.video, out, detections_path, [args.model, args.config])
     # Problems with the input, then with the model or config, then with the
@@ -189,6 +198,10 @@ def cmd_run(args):
                 warm_up_notice=lambda: compile_notice(enabled=not args.quiet))
         finally:
             bar.close()
+    if stats.reader_gone:
+        # The other output is complete; the command line ends quietly (exit 141).
+        raise ReaderGone(next(p for p in (out, detections_path)
+                              if p is not None and writes_standard_output(p)))
     written = [p for p in (out, detections_path)
                if p is not None and (str(p) == STDOUT or Path(p).exists())]
     if stats.horizon is not None and not args.quiet and not verbose:   # verbose: logged

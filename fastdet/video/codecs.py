@@ -7,6 +7,8 @@ parser (every verb's options) does not load FFmpeg for a ``fastdet detect``.
 #: ``--codec`` names and the FFmpeg encoder behind each.
 ENCODERS = {"h264": "libx264", "hevc": "libx265", "av1": "libsvtav1", "vp9": "libvpx-vp9",
             "mp4v": "mpeg4"}
+#: The codec of an annotated video when none is chosen: the one every browser plays.
+DEFAULT_CODEC = "h264"
 #: Default quality (crf; for mp4v the fixed quantiser 2-31) and speed preset per codec,
 #: chosen to keep up with detection on a 1280x720 stream (see README, "Video").
 DEFAULT_CRF = {"h264": 23, "hevc": 28, "av1": 35, "vp9": 35, "mp4v": 5}

@@ -21,6 +21,7 @@ MOT width is ``x2 - x1``.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -31,6 +32,7 @@ import numpy as np
 from ..detector.detections import Detections
 from ..errors import InputError
 from ..files.atomic import StagedFile
+from .standard_output import ReaderGone, writes_standard_output
 
 FORMATS = ("jsonl", "csv", "mot")
 #: Format chosen by a file suffix when none is given.
@@ -64,6 +66,9 @@ class DetectionWriter(StagedFile):
     ...     out.write(0, detections)
     """
 
+    #: Whether the output is standard output and its reader closed it (``| head``).
+    reader_gone = False
+
     def __init__(self, path, fmt=None):
         self.format = format_for(path, fmt)
         super().__init__(path)
@@ -71,7 +76,7 @@ class DetectionWriter(StagedFile):
         self.boxes = 0
         self._handle = None
         try:
-            with self.writing():
+            with self._writing():
                 # Line-buffered: a live run's detections can be followed as they come.
                 self._handle = self.open("w", encoding="utf-8", newline="", buffering=1)
                 if self.format == "csv":
@@ -97,7 +102,7 @@ class DetectionWriter(StagedFile):
         if self.format == "jsonl":
             line = json.dumps({"frame": frame_index, "boxes": detections.to_list()},
                               separators=(", ", ": "))
-            with self.writing():
+            with self._writing():
                 self._handle.write(line + "\n")
             return
         ids = detections.track_id
@@ -111,15 +116,32 @@ class DetectionWriter(StagedFile):
                 track = -1 if ids is None else int(ids[k])
                 rows.append(f"{frame_index + 1},{track},{x1},{y1},{x2 - x1},{y2 - y1},"
                             f"{score},-1,-1,-1\n")
-        with self.writing():
+        with self._writing():
             self._handle.writelines(rows)
 
+    @contextlib.contextmanager
+    def _writing(self):
+        """:meth:`writing`, but a closed standard output raises :class:`ReaderGone`."""
+        with self.writing():
+            try:
+                yield
+            except BrokenPipeError:
+                if not writes_standard_output(self.path):
+                    raise
+                self.reader_gone = True
+                raise ReaderGone(self.path) from None
+
     def _finish(self):
-        self._handle.close()
+        if self.reader_gone:
+            self._abandon()
+            return
+        with self._writing():
+            self._handle.close()
 
     def _abandon(self):
         if self._handle is not None:
-            self._handle.close()
+            with contextlib.suppress(OSError):
+                self._handle.close()
 
 
 def read_detections(path, fmt=None):

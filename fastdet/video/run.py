@@ -25,13 +25,15 @@ from ..detector.detector import Detector
 from ..errors import InputError
 from ..files.atomic import refuse_overwriting_inputs, same_file
 from .ahead import can_look_ahead
+from .codecs import DEFAULT_CODEC
 from .config import TrackConfig, load_track_config
 from .detection_files import DetectionWriter
 from .horizon import resolve_video_horizon
 from .memory import reuse_freed_frames
 from .pipeline import VideoPipeline
-from .sink import VideoSink
+from .sink import VideoSink, refuse_encoder_options_without_video
 from .source import DEFAULT_TIMEOUT, VideoSource, source_file
+from .standard_output import ReaderGone
 from .stages import (QUEUE_FRAMES, Conveyor, StageTimes, ThreadPlan, decode, detect, encode,
                      plan_threads, report, warm_up_queue_frames)
 
@@ -70,6 +72,8 @@ class RunStats:
     ended: str | None = None
     #: What was damaged in the input and skipped or concealed (``None``: nothing).
     damage: str | None = None
+    #: Whether an output on standard output lost its reader (``| head``), which stopped the run.
+    reader_gone: bool = False
     times: StageTimes = field(default_factory=StageTimes)
     plan: ThreadPlan | None = None
 
@@ -215,7 +219,7 @@ def refuse_clashing_outputs(source, target, detections, inputs=()):
 
 def process_video(source, target=None, detector=None, config=None, callback=None, *,
                   detections=None, detections_format=None, start=0, end=None, warmup=0,
-                  codec="h264", crf=None, preset=None, threads=None, realtime=False,
+                  codec=None, crf=None, preset=None, threads=None, realtime=False,
                   debug_view=False, timeout=DEFAULT_TIMEOUT, strict=False, progress=None,
                   log=None, warm_up_notice=None):
     """Detect and track vehicles in a video, writing the annotated video and/or detections.
@@ -248,8 +252,10 @@ def process_video(source, target=None, detector=None, config=None, callback=None
         their outputs discarded, so a range of a long video starts with the
         temporal state a run from the beginning would have had (a batch runner
         splits a video into ranges this way).
-    codec, crf, preset : str, int, str
-        See :class:`VideoSink`.
+    codec, crf, preset : str, int, str, optional
+        See :class:`VideoSink` (default: H.264 at its defaults).  Without a
+        ``target`` they would decide nothing: giving one is an
+        :class:`InputError`.
     threads : int, optional
         Cores the whole run may keep busy (default ``NUMBA_NUM_THREADS``),
         shared between the decoder, the detector and the encoder by
@@ -293,12 +299,17 @@ def process_video(source, target=None, detector=None, config=None, callback=None
     RunInterrupted
         A second Ctrl-C or SIGTERM (the outputs are discarded), or one before
         the first frame was done (no output is written).
+    ReaderGone
+        Standard output's reader closed it before the first frame; later, the
+        run stops as after Ctrl-C and ``RunStats.reader_gone`` says so.
     """
     warmup = int(warmup)
     if warmup < 0:
         raise InputError(f"warmup must be >= 0, got {warmup}")
     if callback is not None and not callable(callback):
         raise InputError(f"callback must be callable, got {type(callback).__name__}")
+    if target is None:
+        refuse_encoder_options_without_video(codec, crf, preset)
     refuse_clashing_outputs(source, target, detections,
                             [config] if isinstance(config, (str, os.PathLike)) else [])
     cores = threads or numba.config.NUMBA_NUM_THREADS
@@ -344,7 +355,8 @@ def process_video(source, target=None, detector=None, config=None, callback=None
             sink = writer = None
             with guard.deferred():
                 if target is not None:
-                    sink = VideoSink(target, video.rate, video.size, codec, crf, preset,
+                    sink = VideoSink(target, video.rate, video.size,
+                                     DEFAULT_CODEC if codec is None else codec, crf, preset,
                                      threads=plan.encoder, time_base=video.time_base,
                                      colour=None if debug_view else video.colour)
                     outputs.append(sink)
@@ -380,8 +392,12 @@ def process_video(source, target=None, detector=None, config=None, callback=None
                 outboxes = []
                 if sink is not None:
                     outboxes.append(conveyor.queue())
+                    # The video starts at 0, its frames' spacing kept, as FFmpeg's
+                    # own output does (no -copyts): a live source's clock starts
+                    # anywhere (a camera's uptime), a range anywhere in its file,
+                    # and a batch joins its segments' videos end to end.
                     conveyor.add("encode", encode, conveyor, outboxes[-1], sink,
-                                 inbox=outboxes[-1])
+                                 False, inbox=outboxes[-1])
                 outboxes.append(conveyor.queue())
                 conveyor.add("write", report, conveyor, outboxes[-1], writer, callback, stats,
                              inbox=outboxes[-1])
@@ -407,8 +423,14 @@ def process_video(source, target=None, detector=None, config=None, callback=None
                 if stats.interrupted:
                     raise RunInterrupted(stats.interrupted)
                 return stats
+            stats.reader_gone = any(output.reader_gone for output in outputs)
             for output in outputs:
-                output.close()
+                try:
+                    output.close()
+                except ReaderGone:
+                    # Found only now when the last writes were buffered (a
+                    # fragmented MP4 goes out a keyframe's group at a time).
+                    stats.reader_gone = True
         except BaseException:
             guard.running()     # signals no longer raise: the discarding runs to its end
             _discard(outputs)

@@ -16,21 +16,27 @@ copies of the last column or row; the picture is never rescaled (an
 Outputs that are not regular files (``-`` for standard output, a FIFO, a
 device) are written through in place; MP4 and QuickTime there are
 *fragmented* (the index ahead of each group of frames instead of one index
-first), which plays while it streams; ``-`` gets fragmented MP4, and AVI,
-which must seek back to finish, is refused.
+first), which plays while it streams; ``-``, and a FIFO or device whose
+name has no suffix (``/dev/null``, ``/dev/stdout``), get fragmented MP4, and
+AVI, which must seek back to finish, is refused.
 
 Timestamps: frames are written with the ``pts`` they are given (in the
 sink's ``time_base``, e.g. the input stream's), so variable and non-integer
 frame rates (29.97 = 30000/1001) are kept; without one a frame is placed
-one frame period after the previous.  Timestamps always increase: one that
-does not is moved just after the previous frame.
+one frame period after the previous.  A first timestamp above 0 is kept
+(in MP4 as an edit list: players start at that time, as with the input);
+when the first is negative, every frame is moved later by as much (MP4 would
+cut the frames before 0).  Timestamps always increase: one that does not is
+moved just after the previous frame.
 """
 
 from __future__ import annotations
 
+import contextlib
 import numbers
 import os
 from fractions import Fraction
+from pathlib import Path
 
 import av
 import cv2
@@ -38,17 +44,21 @@ import numpy as np
 from av.video.reformatter import VideoReformatter
 
 from ..errors import InputError
-from ..files.atomic import StagedFile
-from .codecs import CRF_RANGE, DEFAULT_CRF, DEFAULT_PRESET, ENCODERS, MIN_SIDE, NAMED_PRESETS
+from ..files.atomic import STDOUT, StagedFile
+from .codecs import (CRF_RANGE, DEFAULT_CODEC, DEFAULT_CRF, DEFAULT_PRESET, ENCODERS, MIN_SIDE,
+                     NAMED_PRESETS)
 from .frame_arrays import plane_view
+from .standard_output import PipeWatch, ReaderGone, writes_standard_output
 
 #: Containers by suffix; MP4 and QuickTime files get their index first.
 CONTAINERS = {".mp4": "mp4", ".m4v": "mp4", ".mov": "mov", ".mkv": "matroska",
               ".webm": "webm", ".avi": "avi", ".ts": "mpegts"}
 FASTSTART = frozenset({"mp4", "mov"})
 #: Written in place (``-``, a FIFO, a device), MP4 and QuickTime are fragmented: an index
-#: first needs the whole file, which a stream cannot be rewound to.  ``-`` is MP4.
+#: first needs the whole file, which a stream cannot be rewound to.
 FRAGMENTED = "frag_keyframe+empty_moov+default_base_moof"
+#: The container of ``-`` and of a FIFO or device whose name has no suffix.
+STREAMED_CONTAINER = "mp4"
 #: Containers that must seek back to finish (their index at the end): files only.
 NEEDS_SEEKING = frozenset({"avi"})
 
@@ -151,6 +161,21 @@ def check_encoder(codec, crf=None, preset=None):
         raise InputError(_refusal(codec, crf, preset)) from None
 
 
+def refuse_encoder_options_without_video(codec=None, crf=None, preset=None, remedy="give --out"):
+    """Raise :class:`InputError` when an encoder option is given but no video is written.
+
+    Such an option would decide nothing, and options are never silently
+    ignored (as mp4v refuses a preset).  ``None`` means not given;
+    ``remedy`` ends the message (``fastdet batch``: drop ``--no-video``).
+    """
+    given = [option for option, value in (("--codec", codec), ("--crf", crf),
+                                          ("--preset", preset)) if value is not None]
+    if given:
+        verb = "applies" if len(given) == 1 else "apply"
+        raise InputError(f"{' and '.join(given)} {verb} only to the annotated video, which "
+                         f"this run does not write ({remedy})")
+
+
 def _refusal(codec, crf, preset):
     crf = DEFAULT_CRF[codec] if crf is None else crf
     preset = DEFAULT_PRESET.get(codec) if preset is None else preset
@@ -226,7 +251,10 @@ class VideoSink(StagedFile):
     ...         sink.write(frame)
     """
 
-    def __init__(self, path, fps, size, codec="h264", crf=None, preset=None, threads=1,
+    #: Whether the output is standard output and its reader closed it (``| head``).
+    reader_gone = False
+
+    def __init__(self, path, fps, size, codec=DEFAULT_CODEC, crf=None, preset=None, threads=1,
                  time_base=None, colour=None):
         # Checked before the temporary file exists.
         rate, size = _frame_rate(fps), _frame_size(size)
@@ -239,8 +267,7 @@ class VideoSink(StagedFile):
             raise InputError(f"the {codec} encoder needs at least {least} pixels on each side, "
                              f"got {size[0]}x{size[1]} (choose another --codec)")
         super().__init__(path)
-        streamed = str(path) == "-"
-        container_format = "mp4" if streamed else CONTAINERS.get(self.path.suffix.lower())
+        container_format = _container_format(path, self.in_place)
         if container_format is None:
             self.discard()
             raise InputError(f"cannot write a video to {path} (unsupported suffix; use one of "
@@ -257,6 +284,7 @@ class VideoSink(StagedFile):
         self.time_base = Fraction(time_base) if time_base is not None else 1 / self.rate
         self.frames = 0
         self._last_pts = None
+        self._pts_shift = 0
         self._reformatter = VideoReformatter()
         tags = _colour_tags(colour)
         #: Whether the output is tagged with (and BGR frames converted by) the BT.709 matrix.
@@ -274,11 +302,13 @@ class VideoSink(StagedFile):
         container_options = {}
         if container_format in FASTSTART:
             container_options["movflags"] = FRAGMENTED if self.in_place else "+faststart"
-        self._handle = None
+        self._handle = self._pipe = None
         target = str(self.temporary)
         if self.in_place:
             # Through a Python file object: ``-`` continues this process's own stdout.
             target = self._handle = self.open("wb")
+            if writes_standard_output(self.path):
+                target = self._pipe = PipeWatch(self._handle)
         self._container = av.open(target, "w", format=container_format,
                                   container_options=container_options)
         stream = self._container.add_stream(ENCODERS[self.codec], rate=self.rate,
@@ -335,9 +365,16 @@ class VideoSink(StagedFile):
         try:
             self._container.mux(self._stream.encode(video_frame))
         except (av.error.FFmpegError, OSError) as exc:
+            self._refuse_closed_pipe()
             raise InputError(f"cannot write a video to {self.path}: "
                              f"{getattr(exc, 'strerror', None) or exc}") from None
+        self._refuse_closed_pipe()
         self.frames += 1
+
+    def _refuse_closed_pipe(self):
+        if self._pipe is not None and self._pipe.broken:
+            self.reader_gone = True
+            raise ReaderGone(self.path)
 
     def _from_bgr(self, frame):
         if frame.dtype != np.uint8 or frame.shape != (self.size[1], self.size[0], 3):
@@ -356,7 +393,12 @@ class VideoSink(StagedFile):
         if pts is None:
             step = max(1, round(1 / (self.rate * self.time_base)))
             pts = 0 if self._last_pts is None else self._last_pts + step
-        pts = int(pts)
+        else:
+            pts = int(pts)
+            if self._last_pts is None and pts < 0:
+                # MP4's edit list would cut the frames before 0 from the video.
+                self._pts_shift = -pts
+            pts += self._pts_shift
         if self._last_pts is not None and pts <= self._last_pts:
             pts = self._last_pts + 1
         self._last_pts = pts
@@ -371,12 +413,21 @@ class VideoSink(StagedFile):
             super().close()
 
     def _finish(self):
+        if self.reader_gone:
+            with contextlib.suppress(av.error.FFmpegError, OSError):
+                self._abandon()
+            return
         try:
             self._container.mux(self._stream.encode(None))
             self._container.close()  # writes the index, moved to the front (faststart)
             if self._handle is not None:
                 self._handle.close()
         except (av.error.FFmpegError, OSError) as exc:
+            if self._pipe is not None and self._pipe.broken:
+                self.reader_gone = True
+                with contextlib.suppress(OSError):
+                    self._handle.close()
+                raise ReaderGone(self.path) from None
             raise InputError(f"cannot finish the video {self.path}: "
                              f"{getattr(exc, 'strerror', None) or exc}") from None
 
@@ -389,6 +440,19 @@ class VideoSink(StagedFile):
             handle = getattr(self, "_handle", None)
             if handle is not None:
                 handle.close()
+
+
+def _container_format(path, in_place):
+    """The container for ``path``: its suffix's; ``-`` and a suffix-less FIFO or device get MP4.
+
+    A stream has no name to choose by (``/dev/stdout``, ``/dev/null``, a
+    FIFO named ``ff``), and fragmented MP4 is what ``-`` is given.  ``None``
+    for a suffix fastdet cannot write.
+    """
+    suffix = Path(path).suffix.lower()
+    if str(path) == STDOUT or (in_place and not suffix):
+        return STREAMED_CONTAINER
+    return CONTAINERS.get(suffix)
 
 
 def _colour_tags(colour):

@@ -38,6 +38,7 @@ from ..detector.scoring import STAGES
 from ..viz.draw import debug_frame, draw_detections_yuv420
 from .ahead import process_ahead
 from .frame_arrays import FrameConverter, plane_view
+from .standard_output import ReaderGone
 
 #: Frames each queue holds: enough to ride out one slow frame, few enough for flat memory.
 QUEUE_FRAMES = 4
@@ -475,10 +476,14 @@ def detect(clock, conveyor, inbox, outboxes, pipeline, rows, debug_view, first_o
         conveyor.put(outbox, END, clock)
 
 
-def encode(clock, conveyor, inbox, sink):
-    """Boxes drawn on the decoded planes (or the debug picture), encoded in order."""
+def encode(clock, conveyor, inbox, sink, keep_timestamps=True):
+    """Boxes drawn on the decoded planes (or the debug picture), encoded in order.
+
+    The frames keep their timestamps (a file's start offset included), or
+    with ``keep_timestamps`` false start at 0 with their spacing kept.
+    """
     reformatter = VideoReformatter()
-    first_pts = None
+    origin = None
     while True:
         item = conveyor.get(inbox, clock)
         if item is END:
@@ -486,10 +491,12 @@ def encode(clock, conveyor, inbox, sink):
         _, frame, picture, detections = item
         pts = None
         if frame.pts is not None:
-            first_pts = frame.pts if first_pts is None else first_pts
-            pts = frame.pts - first_pts
+            if origin is None:
+                origin = 0 if keep_timestamps else frame.pts
+            pts = frame.pts - origin
         if picture is not None:
-            sink.write(picture, pts)
+            if not _written(conveyor, sink, picture, pts):
+                return
             continue
         if frame.format.name != "yuv420p":
             # E.g. a camera's full-range yuvj420p: to what the encoder takes.
@@ -500,7 +507,22 @@ def encode(clock, conveyor, inbox, sink):
             frame.make_writable()
             draw_detections_yuv420(plane_view(frame, 0), plane_view(frame, 1),
                                    plane_view(frame, 2), detections, bt709=sink.bt709)
+        if not _written(conveyor, sink, frame, pts):
+            return
+
+
+def _written(conveyor, sink, frame, pts):
+    """Encode one frame; ``False`` once standard output's reader has gone (``| head``).
+
+    Like Ctrl-C, that stops reading, and the other output is completed with
+    the frames read so far.
+    """
+    try:
         sink.write(frame, pts)
+    except ReaderGone:
+        conveyor.stop()
+        return False
+    return True
 
 
 def report(clock, conveyor, inbox, writer, callback, stats):
@@ -510,8 +532,11 @@ def report(clock, conveyor, inbox, writer, callback, stats):
         if item is END:
             return
         index, _, _, detections = item
-        if writer is not None:
-            writer.write(index, detections)
+        if writer is not None and not writer.reader_gone:
+            try:
+                writer.write(index, detections)
+            except ReaderGone:
+                conveyor.stop()     # as Ctrl-C does; the frames read still reach the video
         if callback is not None:
             callback(index, detections)
         stats.frames += 1

@@ -140,9 +140,11 @@ def test_settings_are_checked_and_hashed(tmp_path):
     assert make_settings(crf=30).config_sha256 != base.config_sha256
     assert make_settings(codec="h264").config_sha256 == base.config_sha256
     assert make_settings(crf=23, preset="ultrafast").config_sha256 == base.config_sha256
-    # Without a video the encoder decides nothing, so it is neither hashed nor checked.
-    assert (make_settings(video=False, codec="mp4v", preset="fast").config_sha256
-            == make_settings(video=False).config_sha256)
+    # Without a video the encoder would decide nothing: giving one is refused, as by run.
+    with pytest.raises(InputError, match="--codec and --preset apply only to the annotated video"):
+        make_settings(video=False, codec="mp4v", preset="fast")
+    with pytest.raises(InputError, match="--crf applies only"):
+        make_settings(video=False, crf=-1)
     for options, message in (({"preset": "warp-speed"}, "h264 has no preset 'warp-speed'"),
                              ({"codec": "vp9", "preset": "99"}, "the vp9 encoder refuses"),
                              ({"crf": 52}, "must be 0-51"),
