@@ -50,6 +50,16 @@ from ..errors import InputError
 
 #: The name that means standard output.
 STDOUT = "-"
+#: Other names of this process's standard output: written through its
+#: descriptor like ``-``, whatever it is redirected to.  Followed as links,
+#: ``> out.mp4`` made them a regular file to replace, one whose name has no
+#: suffix to choose a format by.
+STDOUT_ALIASES = ("/dev/stdout", "/dev/fd/1", "/proc/self/fd/1")
+
+
+def is_standard_output(path):
+    """Whether ``path`` names this process's standard output (``-``, ``/dev/stdout``, ...)."""
+    return str(path) == STDOUT or os.path.normpath(str(path)) in STDOUT_ALIASES
 
 #: ``.<stem>.<pid>-<random>.part<suffix>``, as :func:`_temporary_in` names them.
 _TEMPORARY = re.compile(r"^\.(?P<stem>.*)\.(?P<pid>\d+)-[^.]+\.part(?P<suffix>\.[^.]*)?$")
@@ -93,8 +103,8 @@ def _reason(exc):
 
 
 def _in_place(path):
-    """Whether ``path`` is written through in place (``-`` or not a regular file)."""
-    if str(path) == STDOUT:
+    """Whether ``path`` is written through in place (standard output, or not a regular file)."""
+    if is_standard_output(path):
         return True
     try:
         mode = os.stat(path).st_mode
@@ -127,7 +137,7 @@ def _temporary_in(folder, final, suffix):
 def _copy_into(source, target):
     """Append the bytes of ``source`` to ``target``, a stream (``-``) or a special file."""
     with open(source, "rb") as data:
-        if str(target) == STDOUT:
+        if is_standard_output(target):
             sys.stdout.flush()
             shutil.copyfileobj(data, sys.stdout.buffer)
             sys.stdout.buffer.flush()
@@ -223,7 +233,7 @@ class StagedFile:
         self._stack = contextlib.ExitStack()
         self.closed = False
         if self.in_place:
-            self.temporary = Path("/dev/stdout") if str(path) == STDOUT else self.path
+            self.temporary = Path("/dev/stdout") if is_standard_output(path) else self.path
             return
         try:
             self.temporary = self._stack.enter_context(atomic_path(self.path))
@@ -238,7 +248,7 @@ class StagedFile:
         continues what was already printed, also when it is redirected to a
         regular file (reopening ``/dev/stdout`` would truncate that file).
         """
-        if str(self.path) == STDOUT:
+        if is_standard_output(self.path):
             sys.stdout.flush()
             return open(os.dup(sys.stdout.fileno()), mode, closefd=True, **kwargs)
         return open(self.temporary, mode, **kwargs)

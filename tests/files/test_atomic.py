@@ -293,3 +293,23 @@ def test_output_equal_to_an_input_is_refused(tmp_path):
             refuse_overwriting_inputs(output, [None, str(image)])
     refuse_overwriting_inputs(tmp_path / "b.jpg", [image])
     refuse_overwriting_inputs("-", [image])
+
+
+@pytest.mark.parametrize("alias", ["/dev/stdout", "/dev/fd/1", "/proc/self/fd/1"])
+def test_a_name_of_standard_output_redirected_to_a_file_is_written_through(tmp_path, alias):
+    """``--out /dev/stdout > out.mp4``: followed as a link, the name was a regular file to
+    replace (reopening it truncated what stdout held) and had no suffix to choose a format by."""
+    script = ("import sys; from fastdet.files.atomic import atomic_path, StagedFile\n"
+              "print('before', flush=True)\n"
+              "with atomic_path(sys.argv[1]) as tmp: tmp.write_text('atomic\\n')\n"
+              "class Text(StagedFile):\n"
+              "    def write(self, text):\n"
+              "        with self.open('a') as handle: handle.write(text)\n"
+              "staged = Text(sys.argv[1]); assert staged.in_place\n"
+              "staged.write('staged\\n'); staged.close()\n")
+    out = tmp_path / "out.txt"
+    with open(out, "w") as handle:
+        subprocess.run([sys.executable, "-c", script, alias], stdout=handle, check=True,
+                       timeout=60)
+    assert out.read_text() == "before\natomic\nstaged\n"
+    assert list(tmp_path.iterdir()) == [out]
