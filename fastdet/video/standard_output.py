@@ -13,7 +13,7 @@ import os
 import sys
 
 from ..errors import InputError
-from ..files.atomic import STDOUT
+from ..files.atomic import is_standard_output
 
 
 class ReaderGone(InputError):
@@ -24,17 +24,13 @@ class ReaderGone(InputError):
 
 
 def writes_standard_output(path):
-    """Whether ``path`` is this process's standard output (``-``, ``/dev/stdout``, ...)."""
-    if str(path) == STDOUT:
+    """Whether ``path`` is this process's standard output (``-``, ``/dev/stdout``, a
+    name of the pipe or file it is)."""
+    if is_standard_output(path):
         return True
     with contextlib.suppress(OSError, ValueError):
         return os.path.samestat(os.stat(path), os.fstat(sys.stdout.fileno()))
     return False
-
-
-def reader_gone(exc, path):
-    """Whether ``exc``, raised writing ``path``, means standard output's reader went away."""
-    return isinstance(exc, BrokenPipeError) and writes_standard_output(path)
 
 
 class PipeWatch:
