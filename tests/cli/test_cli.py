@@ -10,6 +10,7 @@ import pytest
 from fastdet.cli.app import EXIT_ERROR, main
 from fastdet.detector.features import FeatureLayout, FeatureOptions
 from fastdet.detector.model import Model
+from training_inputs import make_crops
 
 
 @pytest.fixture(scope="module")
@@ -257,15 +258,6 @@ def test_viz_samples_refuses_a_negative_seed(capsys, data_dir, tmp_path, seed):
                  "--out", str(tmp_path / "s.png")]) == EXIT_ERROR
     assert "seed must be a whole number >= 0, got -1" in one_line_error(capsys)
     assert not (tmp_path / "s.png").exists()
-
-
-def make_crops(folder, label, count, rng):
-    folder.mkdir(parents=True)
-    for i in range(count):
-        crop = rng.integers(0, 60, (64, 64, 3), dtype=np.uint8)
-        if label:  # a bright "car" rectangle with strong edges
-            crop[20:48, 8:56] = 220
-        cv2.imwrite(str(folder / f"image{i:04d}.png"), crop)
 
 
 def test_train_writes_a_loadable_model(capsys, tmp_path):

@@ -23,6 +23,7 @@ from fastdet.evaluation.annotations import load_annotations
 from fastdet.training.tune import tune, tuned_config
 from fastdet.video.config import load_track_config
 from video_files import write_clip
+from training_inputs import annotated_blocks, make_crops
 
 
 def one_line_error(capsys):
@@ -31,15 +32,6 @@ def one_line_error(capsys):
     assert err.startswith("fastdet: error: "), captured.err
     assert "Traceback" not in captured.err
     return err
-
-
-def make_crops(folder, label, count, rng):
-    folder.mkdir(parents=True)
-    for i in range(count):
-        crop = rng.integers(0, 60, (64, 64, 3), dtype=np.uint8)
-        if label:
-            crop[20:48, 8:56] = 220
-        cv2.imwrite(str(folder / f"image{i:04d}.png"), crop)
 
 
 @pytest.fixture
@@ -173,15 +165,7 @@ def generous_model(tmp_path):
 @pytest.fixture
 def scene(tmp_path):
     """a.png (a bright, annotated block), b.png (an unannotated one), their annotations."""
-    truth = {}
-    for name, annotated in (("a.png", True), ("b.png", False)):
-        image = np.zeros((128, 256, 3), np.uint8)
-        image[32:96, 64:128] = 250
-        cv2.imwrite(str(tmp_path / name), image)
-        truth[name] = ([{"box": [64, 32, 128, 96], "label": "car", "difficult": False}]
-                       if annotated else [])
-    annotations = tmp_path / "annotations.json"
-    annotations.write_text(json.dumps({"images": truth}))
+    annotations = annotated_blocks(tmp_path)
     return tmp_path, annotations
 
 

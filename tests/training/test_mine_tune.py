@@ -15,6 +15,7 @@ from fastdet.evaluation.annotations import load_annotations
 from fastdet.training.mine import background_hits, mine
 from fastdet.errors import ConfigError
 from fastdet.training.tune import _moved, as_toml, tune
+from training_inputs import annotated_blocks
 
 
 def test_background_hits_rules():
@@ -38,20 +39,6 @@ def generous_model():
     return Model(weights, bias=-100.0, options=options)
 
 
-def synthetic_frames(tmp_path):
-    """Two 256x128 images: a bright block (annotated) and a bright block that isn't."""
-    frames = {}
-    for name, annotate in (("a.png", True), ("b.png", False)):
-        image = np.zeros((128, 256, 3), np.uint8)
-        image[32:96, 64:128] = 250
-        cv2.imwrite(str(tmp_path / name), image)
-        frames[name] = [{"box": [64, 32, 128, 96], "label": "car", "difficult": False}] \
-            if annotate else []
-    path = tmp_path / "annotations.json"
-    path.write_text(json.dumps({"images": frames}))
-    return path
-
-
 def small_config():
     from fastdet.detector.config import BoxConfig, HeatConfig, ScaleConfig
     return DetectorConfig(
@@ -61,7 +48,7 @@ def small_config():
 
 
 def test_mine_saves_only_unannotated_hits(tmp_path, generous_model):
-    annotations = load_annotations(synthetic_frames(tmp_path))
+    annotations = load_annotations(annotated_blocks(tmp_path))
     detector = Detector(generous_model, small_config(), threads=1)
     sources = [tmp_path / "a.png", tmp_path / "b.png"]
     result = mine(detector, sources, annotations, tmp_path / "out")
@@ -86,7 +73,7 @@ def test_mine_cli_without_annotated_frames(tmp_path, capsys, generous_model):
 
 
 def test_tune_finds_a_perfect_setting_and_writes_toml(tmp_path, generous_model):
-    annotations = load_annotations(synthetic_frames(tmp_path))
+    annotations = load_annotations(annotated_blocks(tmp_path))
     # Only a.png: there the bright block is the vehicle.  At threshold 50 only the
     # window on the block is a hit; at 200 none is.
     truth = {"a.png": annotations["a.png"]}
@@ -171,7 +158,7 @@ def test_jitter_scores_every_frame_at_each_grid_shift(tmp_path, generous_model):
     """A jittered frame counts once as it is and once with the grid moved 16 rows
     down: there the windows (a step of 32) straddle the block, the box misses it,
     and precision and recall over both samples are a half."""
-    annotations = load_annotations(synthetic_frames(tmp_path))
+    annotations = load_annotations(annotated_blocks(tmp_path))
     truth = {"a.png": annotations["a.png"]}
     grid = {"decision_threshold": (50.0,), "heat_threshold": (0.5,), "weighting": ("count",),
             "peak_fraction": (0.0,)}
@@ -196,7 +183,7 @@ def test_jitter_scores_every_frame_at_each_grid_shift(tmp_path, generous_model):
 
 
 def test_tune_refuses_an_auto_horizon(tmp_path, generous_model):
-    annotations = load_annotations(synthetic_frames(tmp_path))
+    annotations = load_annotations(annotated_blocks(tmp_path))
     config = DetectorConfig.from_dict({"search": {"horizon": "auto"}})
     with pytest.raises(ConfigError, match="numeric horizon"):
         tune(generous_model, [tmp_path / "a.png"], annotations, config)

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
 from fastdet.detector.features import FeatureOptions
 from fastdet.training.augment import JITTER_SCALE, JITTER_SHIFT, jitter_crops
 from fastdet.training.train import _fit_and_score, cross_validate, train
+from training_inputs import make_crops
 
 
 def square_crop(x0=24, y0=24, side=16):
@@ -78,15 +78,6 @@ def test_copies_are_used_for_training_only():
     folds = np.arange(20) % 4
     cv = cross_validate(features, labels, folds, 0, [copy, copy], [0.1, 1.0])
     assert cv["C"] in (0.1, 1.0) and cv["folds"] == [1, 2, 3]
-
-
-def make_crops(folder, label, count, rng):
-    folder.mkdir(parents=True)
-    for i in range(count):
-        crop = rng.integers(0, 60, (64, 64, 3), dtype=np.uint8)
-        if label:
-            crop[20:48, 8:56] = 220
-        cv2.imwrite(str(folder / f"image{i:04d}.png"), crop)
 
 
 @pytest.mark.parametrize("jitter", [True, False])
