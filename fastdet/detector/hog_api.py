@@ -16,6 +16,8 @@ as scikit-image does, in float64 throughout (see
 
 from __future__ import annotations
 
+import operator
+
 import numpy as np
 
 from ..kernels.blocks import NORM_CODES, normalize_blocks
@@ -29,12 +31,27 @@ _ONE_CHANNEL_AXIS = "only a single channel axis is currently supported"
 _COMPLEX = "complex valued input is not supported"
 
 
+def _integer(value, name):
+    """``value`` as an int: integers only (NumPy's too), as scikit-image's ``range`` takes them.
+
+    ``int()`` truncated 7.5 to 7 and read "9" and True, so a call scikit-image
+    refuses (or computes at 7.5) returned other features here.
+    """
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    try:
+        return operator.index(value)
+    except TypeError:
+        raise TypeError(f"{name} must be an integer, got {value!r}") from None
+
+
 def _pair(value, name):
     """``value`` as a pair of positive ints (scikit-image takes any 2-sequence)."""
     try:
-        first, second = (int(v) for v in value)
+        first, second = value
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a pair of positive integers, got {value!r}") from None
+    first, second = _integer(first, name), _integer(second, name)
     if first < 1 or second < 1:
         raise ValueError(f"{name} must be a pair of positive integers, got {value!r}")
     return first, second
@@ -141,7 +158,7 @@ def hog(image, orientations=9, pixels_per_cell=(8, 8), cells_per_block=(2, 2),
         raise ValueError(_INVALID_NORM)
     cell_rows, cell_cols = _pair(pixels_per_cell, "pixels_per_cell")
     block_rows, block_cols = _pair(cells_per_block, "cells_per_block")
-    orientations = int(orientations)
+    orientations = _integer(orientations, "orientations")
     if orientations < 1:
         raise ValueError(f"orientations must be a positive integer, got {orientations}")
     n_blocks_row = image.shape[0] // cell_rows - block_rows + 1

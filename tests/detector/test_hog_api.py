@@ -130,3 +130,22 @@ def test_invalid_input_raises_like_skimage(image, kwargs):
     with pytest.raises(ValueError) as info:
         fastdet.hog(image, **kwargs)
     assert str(info.value) == skimage_error(image, **kwargs)
+
+
+@pytest.mark.parametrize("kwargs", [
+    {"orientations": 2.5}, {"orientations": "9"}, {"orientations": True},
+    {"pixels_per_cell": (7.5, 8)}, {"cells_per_block": (2.5, 2)},
+    {"cells_per_block": (np.True_, 2)},
+])
+def test_parameters_that_are_not_integers_are_refused(kwargs):
+    """They were truncated (7.5 to 7, True to 1): other features than scikit-image's,
+    which refuses most of them and computes pixels_per_cell=7.5 as given."""
+    with pytest.raises(TypeError, match="must be an integer"):
+        fastdet.hog(np.zeros((67, 91), np.uint8), **kwargs)
+
+
+def test_numpy_integers_are_integers():
+    image = np.random.default_rng(3).integers(0, 256, (67, 91), dtype=np.uint8)
+    np.testing.assert_array_equal(
+        fastdet.hog(image, orientations=np.int64(9), pixels_per_cell=(np.int32(8), 8)),
+        fastdet.hog(image))
