@@ -28,6 +28,7 @@ from .inputs import find_videos
 from .outputs import check_outputs
 from .report import write_report
 from .runner import BatchRun
+from .segments import parse_segment
 from .settings import make_settings
 from .worker import compile_for_local_workers
 
@@ -49,6 +50,8 @@ def run_batch(inputs, out_dir, client=None, *, scheduler=None, scheduler_file=No
     if isinstance(inputs, (str, Path)):
         inputs = [inputs]
     settings = make_settings(threads=1 if threads is None else threads, **run_options)
+    if segment is not None:
+        parse_segment(segment)   # a one-line error now, not once the cluster has started
     out_dir = Path(out_dir)
     videos = find_videos(inputs, exclude=out_dir)
     check_outputs(videos, out_dir, settings)

@@ -136,7 +136,7 @@ def make_settings(model=None, config=None, every=None, track=False, video=True,
     if format is not None and format not in FORMATS:
         raise InputError(f"unknown detections format {format!r} (choose from {', '.join(FORMATS)})")
     if every is not None and (isinstance(every, bool) or not isinstance(every, int) or every < 1):
-        raise InputError(f"--every must be at least 1, got {every}")
+        raise InputError(f"--every must be a whole number >= 1, got {every!r}")
     if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
         raise InputError(f"--threads must be at least 1, got {threads}")
     if crf is not None and (isinstance(crf, bool) or not isinstance(crf, int)):

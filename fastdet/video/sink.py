@@ -345,6 +345,8 @@ class VideoSink(StagedFile):
             Presentation time in :attr:`time_base` units; default: one frame
             period after the previous frame.
         """
+        if self.closed:
+            raise InputError(f"the video {self.path} is closed")
         if isinstance(frame, np.ndarray):
             video_frame = self._from_bgr(frame)
         elif not isinstance(frame, av.VideoFrame):
@@ -377,7 +379,9 @@ class VideoSink(StagedFile):
             raise ReaderGone(self.path)
 
     def _from_bgr(self, frame):
-        if frame.dtype != np.uint8 or frame.shape != (self.size[1], self.size[0], 3):
+        if frame.dtype != np.uint8:
+            raise InputError(f"a frame is BGR uint8, got {frame.dtype}")
+        if frame.shape != (self.size[1], self.size[0], 3):
             raise InputError(f"frame of shape {frame.shape} does not fit a "
                              f"{self.size[0]}x{self.size[1]} video")
         frame = pad_to_even(frame)

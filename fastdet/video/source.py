@@ -47,6 +47,13 @@ NETWORK_SCHEMES = LIVE_SCHEMES | {"http", "https"}
 DEFAULT_TIMEOUT = 10.0
 
 
+def _frame_index(value, option):
+    """A frame number: a whole number (``int(1.5)`` started a range at frame 1)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise InputError(f"{option} must be a whole number of frames, got {value!r}")
+    return int(value)
+
+
 def _source_kind(source):
     """``(what av.open gets, its format or None, kind)``; kind: file, network or camera."""
     if isinstance(source, int) or (isinstance(source, str) and source.isdigit()):
@@ -220,8 +227,8 @@ class VideoSource:
         self.frames_read = 0
         #: Frames :meth:`decoded_frames` left undecoded (its ``needed`` ruled them out).
         self.frames_left_undecoded = 0
-        self.start = int(start)
-        self.end = None if end is None else int(end)
+        self.start = _frame_index(start, "--start")
+        self.end = None if end is None else _frame_index(end, "--end")
         if self.start < 0:
             raise InputError(f"--start must be >= 0, got {self.start}")
         if self.end is not None and self.end <= self.start:
@@ -486,6 +493,9 @@ class VideoSource:
             self._index += 1
             self.frames_read += 1
             yield frame
+        if self._container is None:
+            # Closed while its frames were read: not the file ending early.
+            raise InputError(f"{self.name} is closed")
         last = self.frame_count if self.end is None else min(self.end, self.frame_count or 0)
         if self._count_from_index and self._index < last and self.damage.ended_after is None:
             # The index promised more: the file is cut short or its data is damaged.

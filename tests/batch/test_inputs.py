@@ -162,3 +162,24 @@ def test_settings_are_checked_and_hashed(tmp_path):
     with pytest.raises(Exception, match="model"):
         make_settings(model=bad)
     assert Path(bad).exists()
+
+
+def test_a_fractional_every_is_refused_for_what_it_is():
+    with pytest.raises(InputError, match=r"--every must be a whole number >= 1, got 2\.5"):
+        make_settings(every=2.5)
+
+
+def test_a_bad_segment_is_refused_before_a_cluster_starts(tmp_path, monkeypatch):
+    """fastdet.batch(segment="abc") was refused once the local cluster had started."""
+    import fastdet.batch as batch_module
+
+    def no_cluster(*args, **kwargs):
+        raise AssertionError("a cluster was started")
+
+    monkeypatch.setattr(batch_module, "batch_client", no_cluster)
+    monkeypatch.setattr(batch_module, "compile_for_local_workers", no_cluster)
+    video = tmp_path / "a.mp4"
+    video.write_bytes(b"")
+    with pytest.raises(InputError, match="--segment takes frames"):
+        batch_module.run_batch([video], tmp_path / "out", segment="abc")
+    assert not (tmp_path / "out").exists()

@@ -260,3 +260,17 @@ def test_unwritable_destination(tmp_path, name, message):
     with pytest.raises(InputError, match=message):
         VideoSink(tmp_path / name, 25.0, SIZE)
     assert leftovers(tmp_path) == []
+
+
+def test_a_frame_of_another_dtype_or_after_closing_is_named_as_such(tmp_path):
+    """A float32 frame of the right shape "did not fit", a write after close said "End of file"."""
+    path = tmp_path / "out.mp4"
+    sink = VideoSink(path, 12, SIZE)
+    with pytest.raises(InputError, match="a frame is BGR uint8, got float32"):
+        sink.write(numbered_frame(0).astype(np.float32))
+    sink.write(numbered_frame(0))
+    sink.close()
+    with pytest.raises(InputError, match=f"the video {path} is closed"):
+        sink.write(numbered_frame(1))
+    with VideoSource(path) as video:
+        assert [frame_number(frame[:SIZE[1], :SIZE[0]]) for frame in video] == [0]

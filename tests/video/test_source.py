@@ -276,3 +276,20 @@ def test_a_timeout_that_is_no_positive_number_is_refused(data_dir, timeout):
     unnoticed on a file."""
     with pytest.raises(InputError, match="--timeout must be a positive number of seconds"):
         VideoSource(data_dir / "test_video.mp4", timeout=timeout)
+
+
+@pytest.mark.parametrize("start, end", [(1.5, None), (0, 3.0), (True, None), ("1", None)])
+def test_frame_numbers_must_be_whole(clip, start, end):
+    """VideoSource(start=1.5) began at frame 1."""
+    with pytest.raises(InputError, match="must be a whole number of frames"):
+        VideoSource(clip, start, end)
+
+
+def test_closing_a_source_while_reading_it_says_so(clip):
+    """It blamed the file: "the input ends after frame 0 of 10 frames (truncated or damaged)"."""
+    video = VideoSource(clip, start=np.int64(0))
+    frames = iter(video)
+    next(frames)
+    video.close()
+    with pytest.raises(InputError, match=r"clip\.mp4 is closed"):
+        next(frames)
