@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import inspect
 import sys
 import time
 import types
@@ -47,6 +48,10 @@ def run_batch(inputs, out_dir, client=None, *, scheduler=None, scheduler_file=No
     start included.
     """
     start = time.perf_counter()
+    unknown = sorted(set(run_options) - set(inspect.signature(make_settings).parameters))
+    if unknown:
+        # Named against batch(), which the caller called, not the helper it passes them to.
+        raise TypeError(f"batch() got an unexpected keyword argument {unknown[0]!r}")
     if isinstance(inputs, (str, Path)):
         inputs = [inputs]
     settings = make_settings(threads=1 if threads is None else threads, **run_options)
@@ -126,8 +131,10 @@ def batch(inputs, out_dir, client=None, **run_options):
 class _CallableModule(types.ModuleType):
     """This package's type: calling it calls :func:`batch`."""
 
-    def __call__(self, inputs, out_dir, client=None, **run_options):
-        return batch(inputs, out_dir, client, **run_options)
+    def __call__(self, *args, **kwargs):
+        # Passed on as given, so that a wrong call is reported against batch()'s
+        # own signature, not this method's.
+        return batch(*args, **kwargs)
 
 
 sys.modules[__name__].__class__ = _CallableModule

@@ -21,14 +21,19 @@ class Detections:
     __slots__ = ("xyxy", "score", "track_id")
 
     def __init__(self, xyxy, score, track_id=None):
-        xyxy = np.asarray(xyxy, dtype=np.int32).reshape(-1, 4)
-        score = np.asarray(score, dtype=np.float32).reshape(-1)
+        xyxy = _whole_numbers(xyxy, np.int32, "box coordinates").reshape(-1, 4)
+        score = np.asarray(score, dtype=np.float64).reshape(-1)
         if score.shape[0] != xyxy.shape[0]:
             raise ValueError(f"{xyxy.shape[0]} boxes but {score.shape[0]} scores")
+        with np.errstate(over="ignore"):
+            score = score.astype(np.float32)
+        if not np.all(np.isfinite(score)):
+            # A NaN or infinite score would be written as JSON no strict parser reads.
+            raise ValueError("every score must be a finite number (as float32)")
         if np.any(xyxy[:, 2] <= xyxy[:, 0]) or np.any(xyxy[:, 3] <= xyxy[:, 1]):
             raise ValueError("every box needs x2 > x1 and y2 > y1")
         if track_id is not None:
-            track_id = np.asarray(track_id, dtype=np.int64).reshape(-1)
+            track_id = _whole_numbers(track_id, np.int64, "track ids").reshape(-1)
             if track_id.shape[0] != xyxy.shape[0]:
                 raise ValueError(f"{xyxy.shape[0]} boxes but {track_id.shape[0]} track ids")
         self.xyxy = xyxy
@@ -69,3 +74,22 @@ class Detections:
                 item["track"] = int(self.track_id[i])
             items.append(item)
         return items
+
+
+def _whole_numbers(values, dtype, what):
+    """``values`` as ``dtype``, refusing what the cast would change: fractions
+    (1.5 would become 1), NaN and numbers outside the type's range (which wrap)."""
+    values = np.asarray(values)
+    if values.dtype == dtype:
+        return values
+    if values.size == 0:
+        return values.astype(dtype)
+    if values.dtype.kind == "b" or values.dtype.kind not in "iuf":
+        raise ValueError(f"{what} must be integers, not {values.dtype}")
+    limits = np.iinfo(dtype)
+    if values.dtype.kind == "f":
+        if not np.all(np.isfinite(values)) or np.any(values != np.round(values)):
+            raise ValueError(f"{what} must be whole numbers")
+    if values.min() < limits.min or values.max() > limits.max:
+        raise ValueError(f"{what} must lie between {limits.min} and {limits.max}")
+    return values.astype(dtype)

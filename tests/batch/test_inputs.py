@@ -183,3 +183,30 @@ def test_a_bad_segment_is_refused_before_a_cluster_starts(tmp_path, monkeypatch)
     with pytest.raises(InputError, match="--segment takes frames"):
         batch_module.run_batch([video], tmp_path / "out", segment="abc")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("call", [
+    lambda batch, video, out: batch([video], out, bogus=1),
+    lambda batch, video, out: batch(inputs=[video], out_dir=out, every=2, trak=True),
+])
+def test_an_unknown_option_is_named_against_batch_itself(tmp_path, monkeypatch, call):
+    """fastdet.batch(bogus=1) said make_settings() had no such argument."""
+    import fastdet
+    import fastdet.batch as batch_module
+
+    def no_cluster(*args, **kwargs):
+        raise AssertionError("a cluster was started")
+
+    monkeypatch.setattr(batch_module, "batch_client", no_cluster)
+    video = tmp_path / "a.mp4"
+    video.write_bytes(b"")
+    with pytest.raises(TypeError, match=r"^batch\(\) got an unexpected keyword argument '(bogus|trak)'$"):
+        call(fastdet.batch, video, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_package_called_without_its_arguments_names_batch():
+    import fastdet
+
+    with pytest.raises(TypeError, match=r"^batch\(\) missing 2 required positional"):
+        fastdet.batch()
