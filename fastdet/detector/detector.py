@@ -166,6 +166,11 @@ class Detector:
     serial calls give.  For detections running side by side, give each
     thread its own detector.
 
+    A detector can be pickled (to hand it to ``multiprocessing``,
+    ``concurrent.futures`` or joblib workers): the copy is built again from
+    the model, the configuration and the arguments it was given, and searches
+    at the horizon the original had taken.
+
     Examples
     --------
     >>> detector = Detector()                      # doctest: +SKIP
@@ -174,6 +179,7 @@ class Detector:
     """
 
     def __init__(self, model=None, config=None, threads=None, preload=True):
+        self._arguments = (threads, preload)
         if not isinstance(model, Model):
             model = load_model(model)
         self.model = model
@@ -268,6 +274,15 @@ class Detector:
             config = searched_at(self._requested_config, estimate)
             if config != self.config:
                 self._search_with(config)
+
+    def __reduce__(self):
+        # Locks, threads and compiled plans do not cross processes: the copy is
+        # built again from the model, the configuration as given and as searched
+        # (a horizon taken stays taken) and the arguments, so that a detector can
+        # be handed to multiprocessing, concurrent.futures or joblib workers.
+        threads, preload = self._arguments
+        return (_rebuilt_detector,
+                (self.model, self._requested_config, self.config, threads, preload))
 
     def __del__(self):
         pool = getattr(self, "_pool", None)
@@ -550,3 +565,11 @@ class Detector:
             self.timings["total"] = end - start
             self.last_windows_scored = hits.windows_scored
         return detections
+
+
+def _rebuilt_detector(model, requested_config, searched_config, threads, preload):
+    """A pickled :class:`Detector` again (see ``Detector.__reduce__``)."""
+    detector = Detector(model, requested_config, threads, preload)
+    if searched_config != requested_config:
+        detector._search_with(searched_config)
+    return detector
