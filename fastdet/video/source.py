@@ -212,6 +212,12 @@ class VideoSource:
         With a one-line message when the source cannot be opened, holds no
         frames, sends nothing within ``timeout``, or ``start`` lies past its end.
 
+    Notes
+    -----
+    A source is read once, like the stream it decodes: an iteration stopped
+    early is continued by the next one, and iterating again after the last
+    frame is an :class:`InputError` (open the video again instead).
+
     Examples
     --------
     >>> with VideoSource("clip.mp4") as video:              # doctest: +SKIP
@@ -225,6 +231,7 @@ class VideoSource:
         self.name = str(source)
         self.damage = InputDamage(self.name, strict)
         self.frames_read = 0
+        self._read_to_end = False
         #: Frames :meth:`decoded_frames` left undecoded (its ``needed`` ruled them out).
         self.frames_left_undecoded = 0
         self.start = _frame_index(start, "--start")
@@ -462,6 +469,10 @@ class VideoSource:
         """
         if self._container is None:
             raise InputError(f"{self.name} is closed")
+        if self._read_to_end:
+            # A second pass would silently yield nothing: a stream is read once.
+            raise InputError(f"{self.name}: all {self.frames_read} frames were read; "
+                             "open it again to read them once more")
         first, self._first = self._first, None
         if first is not None:
             self._index += 1
@@ -473,6 +484,7 @@ class VideoSource:
             self._skipper.stop()   # nothing to leave out: no bookkeeping per frame
         for frame in self._decoded:
             if self.end is not None and self._index >= self.end:
+                self._read_to_end = True
                 return
             if isinstance(frame, LeftOut):
                 if needed is None or needed(self._index):
@@ -496,6 +508,7 @@ class VideoSource:
         if self._container is None:
             # Closed while its frames were read: not the file ending early.
             raise InputError(f"{self.name} is closed")
+        self._read_to_end = True
         last = self.frame_count if self.end is None else min(self.end, self.frame_count or 0)
         if self._count_from_index and self._index < last and self.damage.ended_after is None:
             # The index promised more: the file is cut short or its data is damaged.

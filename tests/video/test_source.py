@@ -293,3 +293,19 @@ def test_closing_a_source_while_reading_it_says_so(clip):
     video.close()
     with pytest.raises(InputError, match=r"clip\.mp4 is closed"):
         next(frames)
+
+
+@pytest.mark.parametrize("end", [None, 6])
+def test_a_source_is_read_once_and_a_second_pass_says_so(clip, end):
+    """A second ``for frame in video`` yielded nothing, silently."""
+    with VideoSource(clip, start=2, end=end) as video:
+        first = iter(video)
+        assert [frame_number(next(first)) for _ in range(2)] == [2, 3]
+        first.close()
+        # An iteration stopped early is continued by the next one ...
+        rest = [frame_number(frame) for frame in video]
+        assert rest == list(range(4, end or 10))
+        # ... and one after the last frame is refused, naming the frames read.
+        with pytest.raises(InputError, match=rf"clip\.mp4: all {len(rest) + 2} frames were read; "
+                                             "open it again"):
+            next(iter(video))
