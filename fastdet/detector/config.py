@@ -45,6 +45,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
+import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -68,6 +70,15 @@ def _is_number(value):
 #: and coefficients are all far smaller, and a larger one (1e19, 1e308) passed
 #: the checks and then overflowed in the kernels' integer and float32 arguments.
 MAX_SETTING = 1e9
+
+
+def _tuple(name, value):
+    """``value`` as a tuple; ``None`` or a number (not a list) is a
+    :class:`ConfigError` naming the setting, not ``tuple()``'s TypeError."""
+    try:
+        return tuple(value)
+    except TypeError:
+        raise ConfigError(f"{name} must be a list, got {value!r}") from None
 
 
 def _number(name, value, kind="a finite number"):
@@ -98,8 +109,8 @@ class ScaleConfig:
     y: tuple
 
     def __post_init__(self):
-        object.__setattr__(self, "x", tuple(self.x))
-        object.__setattr__(self, "y", tuple(self.y))
+        object.__setattr__(self, "x", _tuple("search.scales.x", self.x))
+        object.__setattr__(self, "y", _tuple("search.scales.y", self.y))
         _number("search.scales.window", self.window)
         if not self.window >= 8:
             raise ConfigError(f"search.scales.window must be a number >= 8, got {self.window!r}")
@@ -249,12 +260,17 @@ class SearchConfig:
         return self.horizon == AUTO
 
     def __post_init__(self):
-        object.__setattr__(self, "windows", tuple(self.windows))
-        object.__setattr__(self, "band", tuple(self.band))
-        object.__setattr__(self, "scales", tuple(self.scales))
-        object.__setattr__(self, "reference_size", tuple(self.reference_size))
+        for name in ("windows", "band", "scales", "reference_size"):
+            object.__setattr__(self, name, _tuple(f"search.{name}", getattr(self, name)))
         if not self.scales and not self.windows:
             raise ConfigError("search.windows (or search.scales) must list at least one size")
+        # Built in code, a window or scale may be anything: a dict passed here
+        # and failed on an attribute in the middle of the first detection.
+        for name, item_cls in (("windows", WindowConfig), ("scales", ScaleConfig)):
+            for item in getattr(self, name):
+                if not isinstance(item, item_cls):
+                    raise ConfigError(f"search.{name} must hold {item_cls.__name__}s, "
+                                      f"got {type(item).__name__}")
         size = self.reference_size
         if len(size) != 2 or not all(isinstance(v, int) and not isinstance(v, bool)
                                      and 0 < v <= MAX_SETTING for v in size):
@@ -394,7 +410,8 @@ class BoxConfig:
     snap_sides: float = 0.1
 
     def __post_init__(self):
-        object.__setattr__(self, "refine", tuple(tuple(row) for row in self.refine))
+        object.__setattr__(self, "refine", tuple(_tuple("boxes.refine", row)
+                                                 for row in _tuple("boxes.refine", self.refine)))
         if self.refine and (len(self.refine) != 4 or any(
                 len(row) != N_FEATURES or not all(_is_number(v) and abs(v) <= MAX_SETTING
                                                   for v in row)
@@ -424,9 +441,24 @@ class DetectorConfig:
     heat: HeatConfig = field(default_factory=HeatConfig)
     boxes: BoxConfig = field(default_factory=BoxConfig)
 
+    def __post_init__(self):
+        # A section of another type (a dict, None) was taken and failed on an
+        # attribute in the middle of the first detection.
+        for name, section_cls in (("search", SearchConfig), ("heat", HeatConfig),
+                                  ("boxes", BoxConfig)):
+            section = getattr(self, name)
+            if not isinstance(section, section_cls):
+                raise ConfigError(f"{name} must be a {section_cls.__name__}, got "
+                                  f"{type(section).__name__}"
+                                  + (" (DetectorConfig.from_dict reads nested dicts)"
+                                     if isinstance(section, dict) else ""))
+
     def with_horizon(self, fraction):
         """This configuration searched about the horizon row ``fraction`` (``[boxes]
         horizon_y``, unless set, follows it: :meth:`horizon_line`)."""
+        if isinstance(fraction, bool) or not isinstance(fraction, numbers.Real):
+            # float() read "0.5" and failed on "auto" with its own message.
+            raise ConfigError(f"search.horizon must be a number here, got {fraction!r}")
         return dataclasses.replace(self, search=dataclasses.replace(self.search,
                                                                     horizon=float(fraction)))
 
@@ -449,7 +481,10 @@ class DetectorConfig:
             Top-level sections other components own (ignored here, not rejected).
         """
         sections = {"search": SearchConfig, "heat": HeatConfig, "boxes": BoxConfig}
-        unknown = sorted(set(data) - set(sections) - set(extra_sections))
+        if not isinstance(data, dict):
+            raise ConfigError(f"a configuration must be a table (a dict), got "
+                              f"{type(data).__name__}")
+        unknown = sorted(map(str, set(data) - set(sections) - set(extra_sections)))
         if unknown:
             raise ConfigError(f"unknown config section(s): {', '.join(unknown)}")
         built = {}
@@ -506,10 +541,25 @@ def with_search_horizon(config, horizon):
 
 
 def read_toml(path):
-    """Parse a TOML file into a dict with a one-line error on failure."""
+    """Parse a TOML file into a dict with a one-line error on failure.
+
+    Raises
+    ------
+    ConfigError
+        When the file is missing, a folder, not a regular file, or not TOML.
+    TypeError
+        When ``path`` is not a path.
+    """
+    if not isinstance(path, (str, os.PathLike)):
+        # Path() said "expected str, bytes or os.PathLike", and bytes failed too.
+        raise TypeError(f"a config file must be given by its path, got {type(path).__name__}")
+    if not os.fspath(path):
+        raise ConfigError("the config file's path is empty")   # Path("") is ".", a folder
     path = Path(path)
     if path.is_dir():
         raise ConfigError(f"{path} is a folder, not a config file")
+    if path.exists() and not path.is_file():
+        raise ConfigError(f"{path} is not a regular file (a config is read from a file)")
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}")
     try:

@@ -26,7 +26,7 @@ from ..kernels.warmup import warm
 from .boxes import BoxFinder
 from .config import DetectorConfig, load_config
 from .frames import as_bgr_frame
-from .horizon import estimate_horizon, searched_at
+from .horizon import HorizonEstimate, estimate_horizon, searched_at
 from .model import Model, load_model
 from .plan import plan_scales, search_band
 from .scoring import STAGES, Hits, ScaleScorer, kernel_families
@@ -259,6 +259,13 @@ class Detector:
             ``None`` when the configured horizon is a number.  Without lane
             lines in enough frames the estimate's ``fraction`` is ``None`` and
             the built-in default horizon is searched.
+
+        Raises
+        ------
+        TypeError
+            For one frame not in a list (``[frame]``).
+        InputError
+            For a frame that detection refuses too.
         """
         if not self.auto_horizon:
             return None
@@ -269,7 +276,22 @@ class Detector:
     def take_horizon(self, estimate):
         """Search at the horizon of an ``estimate`` already made (of the camera's
         frames, :func:`~fastdet.detector.horizon.estimate_horizon`), if the
-        configured horizon is ``"auto"``; a numeric one stays."""
+        configured horizon is ``"auto"``; a numeric one stays.
+
+        Raises
+        ------
+        TypeError
+            When ``estimate`` is not a
+            :class:`~fastdet.detector.horizon.HorizonEstimate` (a number is
+            not one: ``detector.config = detector.config.with_horizon(0.55)``
+            searches at a given horizon).
+        """
+        # Checked whatever the configured horizon, so that a wrong argument is
+        # found on the first call; it failed on an attribute only when "auto".
+        if not isinstance(estimate, HorizonEstimate):
+            raise TypeError(f"take_horizon needs a HorizonEstimate (from estimate_horizon), "
+                            f"got {type(estimate).__name__}; to search at a given horizon, "
+                            f"assign detector.config = detector.config.with_horizon(fraction)")
         if self.auto_horizon:
             config = searched_at(self._requested_config, estimate)
             if config != self.config:

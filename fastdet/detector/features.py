@@ -138,8 +138,12 @@ class FeatureOptions:
     @classmethod
     def from_dict(cls, data):
         """Build from :meth:`to_dict` output, rejecting unknown keys by name."""
+        if not isinstance(data, dict):
+            # A model's metadata is any JSON: a list failed on joining its items.
+            raise ConfigError(f"feature options must be a table (a dict), got "
+                              f"{type(data).__name__}")
         known = {field.name for field in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - known)
+        unknown = sorted(map(str, set(data) - known))
         if unknown:
             raise ConfigError(f"unknown feature option(s): {', '.join(unknown)}")
         return cls(**data)

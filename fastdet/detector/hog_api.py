@@ -87,7 +87,8 @@ def _kernel_input(image, multichannel):
 
 
 def hog(image, orientations=9, pixels_per_cell=(8, 8), cells_per_block=(2, 2),
-        block_norm="L2-Hys", channel_axis=None, feature_vector=True):
+        block_norm="L2-Hys", channel_axis=None, feature_vector=True, *, visualize=False,
+        transform_sqrt=False):
     """Histogram of Oriented Gradients, as ``skimage.feature.hog`` computes it.
 
     Parameters
@@ -110,6 +111,13 @@ def hog(image, orientations=9, pixels_per_cell=(8, 8), cells_per_block=(2, 2),
         with the largest magnitude (scikit-image's multichannel rule).
     feature_vector : bool
         Return ``ravel()`` of the block array.
+    visualize : bool
+        Only ``False`` (scikit-image's default, which code ported from it
+        often passes); ``True`` raises ``TypeError``.
+    transform_sqrt : bool
+        Take the square root of the image (in its output float dtype) before
+        computing the HOG, as scikit-image does (negative values give NaN).
+        The image then takes the float path, not the integer-gradient one.
 
     Returns
     -------
@@ -124,11 +132,17 @@ def hog(image, orientations=9, pixels_per_cell=(8, 8), cells_per_block=(2, 2),
         With scikit-image's messages: not two spatial dimensions, an
         unknown block norm, more than one channel axis, complex input, or an
         image smaller than one block.
+    TypeError
+        For ``visualize=True``, a ``channel_axis`` of ``True`` or ``False``
+        (in scikit-image's positional order the sixth argument is
+        ``visualize``: here it is ``channel_axis``, where a bool would read
+        as axis 0 or 1), and parameters that are not integers.
 
     Notes
     -----
-    ``visualize`` and ``transform_sqrt`` are not supported (pass
-    ``np.sqrt(image)`` for the latter).  Values match scikit-image to float32
+    ``visualize=True`` is not supported (``fastdet viz hog`` draws HOG
+    pictures).  ``visualize`` and ``transform_sqrt`` are keyword-only: the
+    positional order is fastdet's own.  Values match scikit-image to float32
     rounding for uint8 and float32 images (scikit-image's own tests ask 5
     decimals of float32) and to float64 rounding for float64 and other
     integer images (its tests ask 7 decimals): those are computed in float64.
@@ -143,6 +157,18 @@ def hog(image, orientations=9, pixels_per_cell=(8, 8), cells_per_block=(2, 2),
     image = np.atleast_2d(np.asarray(image))
     if image.dtype.kind == "c":
         raise ValueError(_COMPLEX)
+    if visualize:
+        raise TypeError("visualize=True is not supported by fastdet.hog "
+                        "(use skimage.feature.hog for the HOG image)")
+    if isinstance(channel_axis, (bool, np.bool_)):
+        raise TypeError(f"channel_axis must be an axis (an integer) or None, got "
+                        f"{channel_axis!r} (fastdet.hog's sixth positional argument is "
+                        f"channel_axis, scikit-image's is visualize: pass them by keyword)")
+    if not image.dtype.isnative:
+        # ">f4" is not np.float32 to a dtype comparison: big-endian float32
+        # took the float64 path and returned float64, where scikit-image
+        # returns float32.  Native order gives every dtype rule below.
+        image = image.astype(image.dtype.newbyteorder("="))
     multichannel = channel_axis is not None
     if multichannel:
         axes = (channel_axis,) if np.isscalar(channel_axis) else tuple(channel_axis)
@@ -169,6 +195,9 @@ def hog(image, orientations=9, pixels_per_cell=(8, 8), cells_per_block=(2, 2),
                          f"{block_rows * cell_rows} rows and {block_cols * cell_cols} cols.")
 
     out_dtype = _output_dtype(image.dtype)
+    if transform_sqrt:
+        # scikit-image's order: the image in its output float dtype, then the root.
+        image = np.sqrt(image.astype(out_dtype))
     cells = cell_histograms(_kernel_input(image, multichannel), (cell_rows, cell_cols),
                             orientations, merge_channels=multichannel)
     blocks = normalize_blocks(cells, (block_rows, block_cols), block_norm)

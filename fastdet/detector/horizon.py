@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from .config import DEFAULT_HORIZON
+from .frames import check_frame
 
 #: Frames are looked at with this many rows (smaller ones as they are): the
 #: crossings need a few pixels of accuracy, not the frame's resolution.
@@ -96,8 +97,8 @@ def frame_horizon(frame):
 
     Parameters
     ----------
-    frame : ndarray of uint8, shape (H, W, 3) or (H, W)
-        BGR or grey.
+    frame : ndarray of uint8, shape (H, W, 3), (H, W), (H, W, 1) or (H, W, 4)
+        BGR, grey or BGRA: the frames a :class:`~fastdet.Detector` takes.
 
     Returns
     -------
@@ -105,13 +106,24 @@ def frame_horizon(frame):
         ``None`` when no pair of lane-like segments crosses at a plausible row,
         or the frame is under :data:`MIN_SIDE` pixels on a side (too small to
         show lane lines: a folder of images may hold such a thumbnail).
+
+    Raises
+    ------
+    InputError
+        For a frame a detector refuses too
+        (:func:`~fastdet.detector.frames.check_frame`).
     """
-    frame = np.asarray(frame)
-    if frame.ndim not in (2, 3) or frame.dtype != np.uint8:
-        raise ValueError(f"expected a uint8 image, got {frame.dtype} {frame.shape}")
+    # The detector's own check: (H, W, 1) frames, which detection takes, reached
+    # OpenCV's colour conversion and failed there with its message.
+    check_frame(frame)
     if min(frame.shape[:2]) < MIN_SIDE:
         return None
-    grey = frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+    if frame.ndim == 3 and frame.shape[2] == 1:
+        frame = frame.reshape(frame.shape[:2])
+    # OpenCV's conversion drops a fourth (alpha) channel; a strided grey
+    # frame is copied, as the BGR one is by the conversion, for Canny.
+    grey = (np.ascontiguousarray(frame) if frame.ndim == 2
+            else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY))
     height, width = grey.shape
     if height > ANALYSIS_ROWS:
         scale = ANALYSIS_ROWS / height
@@ -184,7 +196,21 @@ def estimate_horizon(frames):
     HorizonEstimate
         The median of the frames' own estimates, when at least
         :data:`MIN_FRAME_SHARE` of them (and one) have one.
+
+    Raises
+    ------
+    TypeError
+        For one frame passed on its own, not in a list.
+    InputError
+        For a frame a detector refuses (see :func:`frame_horizon`).
     """
+    if isinstance(frames, np.ndarray) and (
+            frames.ndim <= 2 or (frames.ndim == 3 and frames.shape[2] in (1, 3, 4))):
+        # Iterated, one frame's pixel rows were taken for hundreds of frames too
+        # small to have a horizon, and the estimate silently found none.  An
+        # array of frames (N, H, W[, C]) is iterable as frames; a frame's shape is not.
+        raise TypeError(f"frames must be an iterable of frames, got one array of shape "
+                        f"{frames.shape}: pass [frame] for a single image")
     found, seen = [], 0
     for frame in frames:
         if frame is None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import os
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -31,6 +32,10 @@ from .features import WINDOW, FeatureLayout, FeatureOptions
 FORMAT_NAME = "fastdet-model"
 FORMAT_VERSION = 1
 DEFAULT_MODEL_NAME = "default_model.npz"
+#: Largest window score a model may give (see :meth:`Model._largest_score`):
+#: float32 scores and their heat stay finite far beyond it, and trained models
+#: lie far below it (the bundled one's is about 770).
+MAX_SCORE = 1e9
 
 
 @dataclass
@@ -47,6 +52,15 @@ class Model:
         How features are computed; fixes ``F``.
     report : dict
         Training report (accuracies, sizes, times); informational.
+
+    Raises
+    ------
+    ModelError
+        For weights of another length than the options need, weights that
+        are not real numbers, non-finite weights or bias, and weights and
+        bias that could give a window a score beyond :data:`MAX_SCORE`.
+    TypeError
+        When ``options`` is not a :class:`FeatureOptions`.
     """
 
     weights: np.ndarray
@@ -55,7 +69,17 @@ class Model:
     report: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        self.weights = np.ascontiguousarray(self.weights, dtype=np.float32)
+        if not isinstance(self.options, FeatureOptions):
+            raise TypeError(f"options must be a FeatureOptions, got {type(self.options).__name__}"
+                            + (" (FeatureOptions.from_dict reads a dict)"
+                               if isinstance(self.options, dict) else ""))
+        weights = np.asarray(self.weights)
+        if weights.dtype.kind not in "biuf":
+            # The float32 cast dropped the imaginary part of complex weights
+            # (with a warning) and read strings as numbers.
+            raise ModelError(f"model weights must be real numbers, got {weights.dtype}")
+        with np.errstate(over="ignore"):   # too large for float32: refused as not finite below
+            self.weights = np.ascontiguousarray(weights, dtype=np.float32)
         self.bias = float(self.bias)
         expected = self.layout.length
         if self.weights.shape != (expected,):
@@ -63,6 +87,24 @@ class Model:
                              f"options need ({expected},)")
         if not (np.all(np.isfinite(self.weights)) and np.isfinite(self.bias)):
             raise ModelError("model weights or bias are not finite")
+        largest = self._largest_score()
+        if largest > MAX_SCORE:
+            # Windows are scored and their heat summed in float32: a bias of
+            # 1e38 (finite) made the heat infinite, and the boxes failed on
+            # NaN deep inside; 1e300 overflowed the score array to inf.
+            raise ModelError(f"model weights and bias could give window scores of "
+                             f"{largest:.3g}; at most {MAX_SCORE:g} in size is supported")
+
+    def _largest_score(self):
+        """The largest ``|score|`` any window can have: every feature at its largest.
+
+        Block-normalised HOG values are at most 1 (every norm), spatial values
+        255 (means of uint8 pixels) and histogram counts a window's pixels.
+        """
+        hog, spatial, hist = self.split_weights()
+        return (abs(self.bias) + float(np.abs(hog, dtype=np.float64).sum())
+                + 255.0 * float(np.abs(spatial, dtype=np.float64).sum())
+                + float(WINDOW * WINDOW) * float(np.abs(hist, dtype=np.float64).sum()))
 
     @property
     def layout(self):
@@ -134,13 +176,25 @@ def load_model(path=None):
     ModelError
         With a one-line reason when the file is missing, not a model, of an
         unknown version, inconsistent or tampered with.
+    TypeError
+        When ``path`` is neither a path nor ``None``.
     """
     if path is None:
         data = resources.files("fastdet").joinpath("data", DEFAULT_MODEL_NAME).read_bytes()
         return _parse(io.BytesIO(data), "the bundled default model")
+    if not isinstance(path, (str, os.PathLike)):
+        # Path() said "expected str, bytes or os.PathLike", and bytes failed too.
+        raise TypeError(f"a model must be a Model, a model file's path or None, got "
+                        f"{type(path).__name__}"
+                        + (" (model_from_bytes reads a model's bytes)"
+                           if isinstance(path, (bytes, bytearray, memoryview)) else ""))
+    if not os.fspath(path):
+        raise ModelError("the model file's path is empty")   # Path("") is ".", a folder
     path = Path(path)
     if path.is_dir():
         raise ModelError(f"{path} is a folder, not a model file")
+    if path.exists() and not path.is_file():
+        raise ModelError(f"{path} is not a regular file (a model is read from a file)")
     if not path.is_file():
         raise ModelError(f"model file not found: {path}")
     with open(path, "rb") as handle:

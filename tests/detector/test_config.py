@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import fastdet
@@ -9,7 +10,10 @@ from fastdet.detector.config import (
     DEFAULT_WINDOWS,
     PREVIOUS_SCALES,
     PUBLISHED_SCALES,
+    BoxConfig,
     DetectorConfig,
+    ScaleConfig,
+    SearchConfig,
     WindowConfig,
     load_config,
 )
@@ -147,3 +151,59 @@ def test_the_readmes_configuration_example_shows_the_defaults():
             assert any(math.isclose(window["size"], default.size, abs_tol=1e-4)
                        and window["overlap"] == default.overlap
                        for default in defaults.search.windows), window
+
+
+# -- configurations built in code ------------------------------------------------
+@pytest.mark.parametrize("section, value", [("search", {}), ("heat", None),
+                                            ("boxes", {"min_size": 3})])
+def test_sections_must_be_their_dataclasses(section, value):
+    """A dict or None was kept and failed on an attribute in the first detection."""
+    with pytest.raises(ConfigError, match=f"{section} must be a "):
+        DetectorConfig(**{section: value})
+
+
+@pytest.mark.parametrize("key, value", [("windows", [{"size": 0.1, "overlap": 0.5}]),
+                                        ("scales", [(64, 0.5, (0, 1280), (0, 720))])])
+def test_windows_and_scales_must_be_their_dataclasses(key, value):
+    with pytest.raises(ConfigError, match=f"search.{key} must hold"):
+        SearchConfig(**{key: value, **({"windows": ()} if key == "scales" else {})})
+
+
+@pytest.mark.parametrize("build, name", [
+    (lambda: SearchConfig(windows=None), "search.windows"),
+    (lambda: SearchConfig(band=None), "search.band"),
+    (lambda: SearchConfig(reference_size=1280), "search.reference_size"),
+    (lambda: ScaleConfig(64, 0.5, None, (0, 720)), "search.scales.x"),
+    (lambda: ScaleConfig(64, 0.5, (0, 1280), 3), "search.scales.y"),
+    (lambda: BoxConfig(refine=None), "boxes.refine"),
+    (lambda: BoxConfig(refine=[1, 2, 3, 4]), "boxes.refine"),
+])
+def test_a_list_setting_given_no_list_names_it(build, name):
+    """``tuple(None)``'s "'NoneType' object is not iterable"."""
+    with pytest.raises(ConfigError, match=f"{name} must be a list"):
+        build()
+
+
+@pytest.mark.parametrize("data", [[], None, "search"])
+def test_from_dict_takes_only_dicts(data):
+    with pytest.raises(ConfigError, match="must be a table"):
+        DetectorConfig.from_dict(data)
+
+
+@pytest.mark.parametrize("fraction", ["0.5", "auto", None, True])
+def test_with_horizon_takes_only_numbers(fraction):
+    """``float()`` read "0.5" and failed on "auto" with its own message."""
+    with pytest.raises(ConfigError, match="search.horizon must be a number"):
+        DetectorConfig().with_horizon(fraction)
+    assert DetectorConfig().with_horizon(np.float32(0.5)).search.horizon == 0.5
+
+
+@pytest.mark.parametrize("path, error, words", [
+    (3, TypeError, "given by its path"),
+    (b"config.toml", TypeError, "given by its path"),
+    ("", ConfigError, "path is empty"),
+    ("/dev/null", ConfigError, "not a regular file"),
+])
+def test_config_paths_that_are_no_files(path, error, words):
+    with pytest.raises(error, match=words):
+        load_config(path)

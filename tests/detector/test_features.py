@@ -24,6 +24,7 @@ from fastdet.detector.features import (
     hog_input,
 )
 from fastdet.detector.model import Model
+from fastdet.errors import ConfigError
 
 #: Option variants (overrides of the defaults) the detector is checked with.
 VARIANTS = {
@@ -204,6 +205,14 @@ def test_valid_options_round_trip_through_dict(overrides):
 def test_from_dict_rejects_unknown_keys_by_name(key):
     data = {**FeatureOptions().to_dict(), key: 1}
     with pytest.raises(ValueError, match=key):
+        FeatureOptions.from_dict(data)
+
+
+@pytest.mark.parametrize("data", [None, [1], "HLS", {1: 2}])
+def test_from_dict_of_no_table_is_a_config_error(data):
+    """A model's metadata is any JSON: a list failed with "sequence item 0:
+    expected str instance, int found", ``None`` with "not iterable"."""
+    with pytest.raises(ConfigError, match="must be a table|unknown feature option"):
         FeatureOptions.from_dict(data)
 
 

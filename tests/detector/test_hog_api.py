@@ -149,3 +149,53 @@ def test_numpy_integers_are_integers():
     np.testing.assert_array_equal(
         fastdet.hog(image, orientations=np.int64(9), pixels_per_cell=(np.int32(8), 8)),
         fastdet.hog(image))
+
+
+# -- inputs and arguments ported from scikit-image code ------------------------
+@pytest.mark.parametrize("dtype", [">f4", ">f2", ">f8", ">u2", ">i4"])
+def test_non_native_byte_order_follows_skimage(dtype):
+    """Big-endian float32 is not ``np.float32`` to a dtype comparison: it took the
+    float64 path and returned float64, where scikit-image returns float32."""
+    rng = np.random.default_rng(8)
+    image = (rng.random((32, 40)) * (1 if dtype[1] == "f" else 200)).astype(dtype)
+    actual, expected = both(image, cells_per_block=(2, 2))
+    assert_same(actual, expected)
+    assert_same(fastdet.hog(image.astype(image.dtype.newbyteorder("=")), cells_per_block=(2, 2)),
+                expected)
+
+
+@pytest.mark.parametrize("kind", KINDS + ("bool", "int16"))
+@pytest.mark.parametrize("channel_axis", [None, -1])
+def test_transform_sqrt_matches_skimage(kind, channel_axis):
+    """``transform_sqrt`` (which ported code passes, often as ``False``) was a TypeError."""
+    rng = np.random.default_rng(9)
+    shape = (40, 48) + ((3,) if channel_axis is not None else ())
+    if kind == "bool":
+        image = rng.random(shape) > 0.5
+    elif kind == "int16":
+        image = rng.integers(0, 1000, shape).astype(np.int16)
+    else:
+        image = make_image(rng, shape, kind)
+    for transform_sqrt in (True, False):
+        actual, expected = both(image, cells_per_block=(2, 2), channel_axis=channel_axis,
+                                transform_sqrt=transform_sqrt, feature_vector=False)
+        assert_same(actual, expected)
+
+
+def test_visualize_false_is_taken_and_true_refused():
+    image = np.random.default_rng(4).integers(0, 256, (32, 40), dtype=np.uint8)
+    assert_same(fastdet.hog(image, visualize=False), skimage_hog(image, cells_per_block=(2, 2)))
+    with pytest.raises(TypeError, match="visualize=True is not supported"):
+        fastdet.hog(image, visualize=True)
+
+
+@pytest.mark.parametrize("channel_axis", [True, False, np.True_])
+def test_bool_channel_axis_is_refused(channel_axis):
+    """In scikit-image's positional order the sixth argument is ``visualize``; here
+    it is ``channel_axis``, where ``False`` read as axis 0 (a colour image's rows
+    taken for channels)."""
+    image = np.zeros((32, 40, 3), np.uint8)
+    with pytest.raises(TypeError, match="channel_axis must be an axis"):
+        fastdet.hog(image, channel_axis=channel_axis)
+    with pytest.raises(TypeError, match="pass them by keyword"):
+        fastdet.hog(np.zeros((32, 40), np.uint8), 9, (8, 8), (2, 2), "L2-Hys", False, True)

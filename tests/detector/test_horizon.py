@@ -8,7 +8,7 @@ from fastdet.detector.config import DEFAULT_HORIZON, DetectorConfig, SearchConfi
 from fastdet.detector.detector import Detector
 from fastdet.detector.horizon import (FRAME_STEP, FRAMES, HorizonEstimate, estimate_horizon,
                                       frame_horizon, resolve_horizon)
-from fastdet.errors import ConfigError
+from fastdet.errors import ConfigError, InputError
 from road_images import road
 
 AUTO = DetectorConfig.from_dict({"search": {"horizon": "auto"}})
@@ -171,3 +171,60 @@ def test_real_videos_horizons_within_eight_pixels(data_dir, video, truth, rows, 
     estimate = estimate_horizon(_video_frames(data_dir / video, moved))
     assert estimate.frames >= 0.8 * estimate.frames_seen
     assert abs(estimate.fraction - (truth - moved / rows)) < 0.015
+
+
+@pytest.mark.parametrize("make", [
+    lambda image: cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)[:, :, None],   # (H, W, 1)
+    lambda image: cv2.cvtColor(image, cv2.COLOR_BGR2BGRA),                # BGRA
+    lambda image: np.asfortranarray(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)),
+    lambda image: np.dstack([cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)] * 2)[:, :, 0],  # strided
+], ids=["grey-1-channel", "bgra", "grey-fortran", "grey-view"])
+def test_frames_detection_takes_have_a_horizon(make):
+    """(H, W, 1) frames, which a detector takes, reached OpenCV's colour
+    conversion, which refused them with its own message."""
+    image = road(640, 360, 0.52)
+    expected = frame_horizon(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
+    assert expected is not None
+    assert frame_horizon(make(image)) == expected
+    assert estimate_horizon([make(image)]).fraction == expected
+
+
+@pytest.mark.parametrize("frame", [np.zeros((100, 100, 2), np.uint8),
+                                   np.zeros((100, 100, 5), np.uint8),
+                                   np.zeros((1, 100, 100, 3), np.uint8),
+                                   np.zeros(100, np.uint8),
+                                   np.zeros((100, 100, 3), np.uint16),
+                                   [[0] * 100] * 100],
+                         ids=["2-channels", "5-channels", "4d", "1d", "uint16", "list"])
+def test_frames_detection_refuses_are_input_errors(frame):
+    with pytest.raises(InputError, match="a frame must"):
+        frame_horizon(frame)
+    with pytest.raises(InputError, match="a frame must"):
+        estimate_horizon([frame])
+
+
+@pytest.mark.parametrize("shape", [(360, 640, 3), (360, 640), (360, 640, 4)])
+def test_one_frame_not_in_a_list_is_a_type_error(shape):
+    """Iterated, one frame's pixel rows were taken for 360 frames too small to
+    have a horizon: the estimate silently found none."""
+    frame = np.zeros(shape, np.uint8)
+    with pytest.raises(TypeError, match=r"pass \[frame\]"):
+        estimate_horizon(frame)
+    with pytest.raises(TypeError, match=r"pass \[frame\]"):
+        Detector(config=AUTO, threads=1, preload=False).resolve_horizon(frame)
+
+
+def test_a_stack_of_frames_is_frames():
+    frames = np.stack([road(640, 360, 0.52), road(640, 360, 0.52, seed=1)])
+    assert estimate_horizon(frames).frames_seen == 2
+    assert estimate_horizon(frames[:, :, :, 0]).frames_seen == 2   # grey (N, H, W)
+
+
+@pytest.mark.parametrize("estimate", [0.55, None, "auto"])
+@pytest.mark.parametrize("config", [AUTO, None], ids=["auto", "numeric"])
+def test_take_horizon_takes_only_estimates(config, estimate):
+    """A number (or None) failed on ``.fraction`` with an AttributeError when the
+    horizon was "auto", and was silently ignored when it was a number."""
+    detector = Detector(config=config, threads=1, preload=False)
+    with pytest.raises(TypeError, match="needs a HorizonEstimate"):
+        detector.take_horizon(estimate)

@@ -462,3 +462,63 @@ def test_edited_bias_fails_the_settings_checksum(tmp_path):
              metadata=np.frombuffer(_json.dumps(metadata).encode(), np.uint8))
     with pytest.raises(ModelError, match="bias or feature options were modified"):
         load_model(edited)
+
+
+# -- models built in code, and what load_model is given -------------------------
+@pytest.mark.parametrize("options", [None, {}, FeatureOptions().to_dict()],
+                         ids=["none", "empty", "dict"])
+def test_options_must_be_feature_options(options):
+    """A dict or None failed on an attribute (``'dict' object has no attribute 'use_hog'``)."""
+    with pytest.raises(TypeError, match="options must be a FeatureOptions"):
+        Model(np.zeros(FeatureLayout(FeatureOptions()).length, np.float32), 0.0, options)
+
+
+@pytest.mark.parametrize("dtype", [np.complex64, np.str_, object])
+def test_weights_must_be_real_numbers(dtype):
+    """Complex weights lost their imaginary part (with only a warning)."""
+    weights = np.zeros(FeatureLayout(FeatureOptions()).length).astype(dtype)
+    if dtype is np.complex64:
+        weights += 1j
+    with pytest.raises(ModelError, match="must be real numbers"):
+        Model(weights, 0.0, FeatureOptions())
+
+
+@pytest.mark.parametrize("bias, weight", [(1e38, 0.0), (1e300, 0.0), (-1e10, 0.0), (0.0, 1e6),
+                                          (0.0, 3e38)])
+def test_scores_beyond_float32_heat_are_refused(bias, weight):
+    """A bias of 1e38 (finite) made the float32 heat infinite and detection
+    failed with "cannot convert float NaN to integer"; 1e300 overflowed."""
+    options = FeatureOptions()
+    weights = np.full(FeatureLayout(options).length, weight, np.float32)
+    with pytest.raises(ModelError, match="could give window scores"):
+        Model(weights, bias, options)
+    # The bound is far above any trained model's (the bundled one's is about 770).
+    Model(np.full(FeatureLayout(options).length, 1e-3, np.float32), 1e8, options)
+
+
+def test_largest_score_is_reached_by_some_features():
+    """The bound is each group at its largest: HOG 1, spatial 255, histogram counts 64 * 64."""
+    model = make_model()
+    hog, spatial, hist = model.split_weights()
+    features = np.concatenate([np.sign(hog).ravel(), 255 * np.sign(spatial).ravel(),
+                               4096 * np.sign(hist).ravel()])
+    assert model._largest_score() == pytest.approx(abs(model.decision_function(features)
+                                                       - model.bias) + abs(model.bias))
+
+
+@pytest.mark.parametrize("path", [3, b"model.npz", {}, 2.5])
+def test_model_path_of_another_type_is_a_type_error(path):
+    """``Path()``'s "expected str, bytes or os.PathLike object" (and then bytes refused)."""
+    with pytest.raises(TypeError, match="a model must be a Model, a model file's path or None"):
+        load_model(path)
+
+
+def test_empty_model_path_is_not_the_current_folder():
+    with pytest.raises(ModelError, match="path is empty"):
+        load_model("")
+
+
+def test_a_device_is_not_a_missing_file():
+    """``/dev/null`` exists: it was reported "model file not found"."""
+    with pytest.raises(ModelError, match="not a regular file"):
+        load_model("/dev/null")
