@@ -57,6 +57,7 @@ else:  # pragma: no cover - exercised on Python 3.10 only
     import tomli as tomllib
 
 from ..errors import ConfigError
+from .plain import plain_numbers
 from .refine import N_FEATURES
 
 
@@ -109,6 +110,7 @@ class ScaleConfig:
     y: tuple
 
     def __post_init__(self):
+        plain_numbers(self)
         object.__setattr__(self, "x", _tuple("search.scales.x", self.x))
         object.__setattr__(self, "y", _tuple("search.scales.y", self.y))
         _number("search.scales.window", self.window)
@@ -147,6 +149,7 @@ class WindowConfig:
     overlap: float
 
     def __post_init__(self):
+        plain_numbers(self)
         _number("search.windows.size", self.size)
         if not 0 < self.size <= 1:
             raise ConfigError(f"search.windows.size must be in (0, 1] (a fraction of the frame "
@@ -260,6 +263,7 @@ class SearchConfig:
         return self.horizon == AUTO
 
     def __post_init__(self):
+        plain_numbers(self)
         for name in ("windows", "band", "scales", "reference_size"):
             object.__setattr__(self, name, _tuple(f"search.{name}", getattr(self, name)))
         if not self.scales and not self.windows:
@@ -335,6 +339,7 @@ class HeatConfig:
     split_min_size: float = 32.0
 
     def __post_init__(self):
+        plain_numbers(self)
         _number("heat.threshold", self.threshold)
         _number("heat.peak_fraction", self.peak_fraction)
         if not 0 <= self.peak_fraction <= 1:
@@ -410,6 +415,7 @@ class BoxConfig:
     snap_sides: float = 0.1
 
     def __post_init__(self):
+        plain_numbers(self)
         object.__setattr__(self, "refine", tuple(_tuple("boxes.refine", row)
                                                  for row in _tuple("boxes.refine", self.refine)))
         if self.refine and (len(self.refine) != 4 or any(
@@ -442,6 +448,7 @@ class DetectorConfig:
     boxes: BoxConfig = field(default_factory=BoxConfig)
 
     def __post_init__(self):
+        plain_numbers(self)
         # A section of another type (a dict, None) was taken and failed on an
         # attribute in the middle of the first detection.
         for name, section_cls in (("search", SearchConfig), ("heat", HeatConfig),

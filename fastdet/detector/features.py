@@ -32,6 +32,7 @@ from ..kernels.blocks import NORM_CODES, normalize_blocks
 from ..kernels.colour import colour_maps
 from ..kernels.convert import bgr_to_hls
 from ..kernels.hog import cell_histograms
+from .plain import plain_numbers
 
 #: Side of a training crop and of every detection window after resizing.
 WINDOW = 64
@@ -90,6 +91,7 @@ class FeatureOptions:
     use_hog: bool = True
 
     def __post_init__(self):
+        plain_numbers(self)
         self.validate()
 
     def validate(self):

@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass
 
 from ..detector.config import read_toml
+from ..detector.plain import plain_numbers
 from ..errors import ConfigError
 
 HEAT_SMOOTHING = ("none", "exponential", "fir")
@@ -92,6 +93,7 @@ class TrackConfig:
     thumbnail_factor: int = 8
 
     def __post_init__(self):
+        plain_numbers(self)
         if self.every is not None:
             _integer("every", self.every, 1)
         if self.heat_smoothing not in HEAT_SMOOTHING:

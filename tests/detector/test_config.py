@@ -207,3 +207,28 @@ def test_with_horizon_takes_only_numbers(fraction):
 def test_config_paths_that_are_no_files(path, error, words):
     with pytest.raises(error, match=words):
         load_config(path)
+
+
+def test_numpy_scalars_are_the_numbers_they_hold():
+    """np.float32(0.55) as a horizon was refused as "not a finite number"."""
+    import dataclasses
+
+    from fastdet import FeatureOptions, TrackConfig
+
+    config = DetectorConfig()
+    search = dataclasses.replace(config.search, horizon=np.float32(0.55),
+                                 band=(np.float64(0.5), np.float32(0.9)),
+                                 reference_size=(np.int64(1280), np.int32(720)))
+    assert type(search.horizon) is float and search.horizon == float(np.float32(0.55))
+    assert search.band == (0.5, float(np.float32(0.9))) and search.reference_size == (1280, 720)
+    assert all(type(v) is int for v in search.reference_size)
+    heat = dataclasses.replace(config.heat, threshold=np.float32(config.heat.threshold))
+    assert type(heat.threshold) is float
+    options = FeatureOptions(orientations=np.int64(9), hist_bins=np.uint8(32))
+    assert options == FeatureOptions(orientations=9, hist_bins=32)
+    assert TrackConfig(every=np.int64(3)).every == 3
+    # What the equal Python value is refused for, the NumPy one is too.
+    with pytest.raises(ConfigError, match="heat.threshold"):
+        dataclasses.replace(config.heat, threshold=np.bool_(True))
+    with pytest.raises(ConfigError, match="orientations"):
+        FeatureOptions(orientations=np.float64(9.5))
