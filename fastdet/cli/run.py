@@ -20,7 +20,6 @@ import sys
 from pathlib import Path
 from urllib.parse import unquote, urlparse
 
-from ..errors import InputError
 from ..files.atomic import STDOUT, output_in_folder
 from ..video.detection_files import FORMATS
 from .common import (add_encoder_options, add_horizon_option, add_schedule_options,
@@ -132,14 +131,10 @@ def default_output(video):
 
 def _plan(args, track):
     """How the run's threads are shared (the same plan process_video makes)."""
-    import numba
+    from ..video.stages import plan_threads, run_cores
 
-    from ..video.stages import plan_threads
-
-    if args.threads is not None and args.threads < 1:
-        raise InputError(f"--threads must be at least 1, got {args.threads}")
     period = track.search_period
-    return plan_threads(args.threads or numba.config.NUMBA_NUM_THREADS, args.out is not None,
+    return plan_threads(run_cores(args.threads), args.out is not None,
                         1.0 / period if period else 1.0)
 
 

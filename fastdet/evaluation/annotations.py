@@ -108,9 +108,13 @@ def load_splits(path):
 
 
 def frame_number(name):
-    """The 0-based frame index of a video frame's name ``frame<N>``, or ``None``."""
+    """The 0-based frame index of a video frame's name ``frame<N>``, or ``None``.
+
+    ``N`` is ASCII digits: ``str.isdigit`` also takes ``"²"``, which ``int``
+    refuses (an internal error), and ``"٣"``, which it reads as 3.
+    """
     digits = name[5:] if name.startswith("frame") else ""
-    return int(digits) if digits.isdigit() else None
+    return int(digits) if digits.isascii() and digits.isdigit() else None
 
 
 def select_split(annotations, splits, name):
@@ -137,7 +141,9 @@ def _read(path):
         raise InputError(f"annotation file not found: {path}")
     try:
         with open(path, encoding="utf-8") as handle:
-            data = json.load(handle)
+            data = json.load(handle, object_pairs_hook=_unique_keys)
+    except _RepeatedKey as exc:
+        raise InputError(f"{path}: {exc}") from None
     except (ValueError, RecursionError) as exc:
         # JSONDecodeError (a ValueError) says where; a plain ValueError is an
         # integer of more digits than Python converts, RecursionError nesting
@@ -146,6 +152,24 @@ def _read(path):
     if not isinstance(data, dict) or not isinstance(data.get("images"), dict):
         raise InputError(f"{path} must hold a JSON object with an \"images\" object")
     return path, data
+
+
+class _RepeatedKey(ValueError):
+    """A key given twice in one JSON object."""
+
+
+def _unique_keys(pairs):
+    """A JSON object's pairs as a dict; a key given twice is an error.
+
+    ``json`` keeps the last of them silently: an image named twice lost its
+    first list of boxes, and a second ``"box"`` replaced the first.
+    """
+    data = {}
+    for key, value in pairs:
+        if key in data:
+            raise _RepeatedKey(f"{key!r} is given twice in one JSON object")
+        data[key] = value
+    return data
 
 
 def _parse_object(obj, where):

@@ -40,6 +40,36 @@ class FrameConverter:
         return image
 
 
+def upright(frame):
+    """``frame`` turned the way its display matrix says it is shown, or itself.
+
+    Phones store a portrait video as landscape pictures plus a display
+    matrix (rotation side data); players, FFmpeg's own tools and
+    ``cv2.VideoCapture`` show the pictures turned by it.  Without turning
+    them, the detector searched a sideways picture and the annotated copy,
+    which has no such matrix, played sideways.  A turned frame is yuv420p
+    (what the encoder takes anyway), with the same timestamp and colour tags;
+    frames without a rotation cost nothing.
+    """
+    # PyAV gives the matrix's rotation counter-clockwise in degrees; np.rot90
+    # turns counter-clockwise too.
+    turns = round(getattr(frame, "rotation", 0) / 90) % 4
+    if not turns:
+        return frame
+    source = frame
+    if source.format.name != "yuv420p":
+        source = source.reformat(format="yuv420p", dst_color_range="MPEG")
+    width, height = (source.height, source.width) if turns % 2 else (source.width, source.height)
+    turned = av.VideoFrame(width, height, "yuv420p")
+    for index in range(3):
+        # Odd sides: a chroma plane of ceil(h / 2) x ceil(w / 2) turns into ceil(w / 2) x
+        # ceil(h / 2), which is the turned frame's.
+        plane_view(turned, index)[:] = np.rot90(plane_view(source, index), turns)
+    turned.pts, turned.time_base = frame.pts, frame.time_base
+    turned.colorspace, turned.color_range = frame.colorspace, source.color_range
+    return turned
+
+
 def plane_view(frame, index):
     """Plane ``index`` of an ``av.VideoFrame`` as a ``(rows, width)`` uint8 view (no copy)."""
     plane = frame.planes[index]

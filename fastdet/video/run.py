@@ -18,8 +18,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numba
-
 from ..detector.config import DetectorConfig, load_config
 from ..detector.detector import Detector
 from ..errors import InputError
@@ -32,10 +30,10 @@ from .horizon import resolve_video_horizon
 from .memory import reuse_freed_frames
 from .pipeline import VideoPipeline
 from .sink import VideoSink, refuse_encoder_options_without_video
-from .source import DEFAULT_TIMEOUT, VideoSource, source_file
+from .source import DEFAULT_TIMEOUT, VideoSource, source_file, whole_frame_number
 from .standard_output import ReaderGone
 from .stages import (QUEUE_FRAMES, Conveyor, StageTimes, ThreadPlan, decode, detect, encode,
-                     plan_threads, report, warm_up_queue_frames)
+                     plan_threads, report, run_cores, warm_up_queue_frames)
 
 #: The stages of a run, in pipeline order.
 RUN_STAGES = ("decode", "detect", "encode", "write")
@@ -231,11 +229,14 @@ def process_video(source, target=None, detector=None, config=None, callback=None
     Parameters
     ----------
     source : str, Path, int or VideoSource
-        A file, URL or camera (see :class:`VideoSource`), or an open source.
+        A file, URL or camera (see :class:`VideoSource`), or an open source
+        none of whose frames were read yet.
     target : str or Path, optional
         The annotated video (H.264 in MP4 by default).
     detector : Detector or VideoPipeline, optional
-        Default: the bundled model with ``config``'s settings.
+        Default: the bundled model with ``config``'s settings.  A
+        ``VideoPipeline`` is reset first, so that each run starts as a fresh
+        one would (nothing of a previous run's tracks or heat carries over).
     config : str, Path, TrackConfig or DetectorConfig, optional
         A TOML file (its detector sections and ``[track]``), or one of the
         two settings objects; a ``VideoPipeline`` brings its own.
@@ -257,7 +258,8 @@ def process_video(source, target=None, detector=None, config=None, callback=None
         ``target`` they would decide nothing: giving one is an
         :class:`InputError`.
     threads : int, optional
-        Cores the whole run may keep busy (default ``NUMBA_NUM_THREADS``),
+        Cores the whole run may keep busy (default and most
+        ``NUMBA_NUM_THREADS``; see :func:`~fastdet.video.stages.run_cores`),
         shared between the decoder, the detector and the encoder by
         :func:`plan_threads`.  Two or more detector threads score as many
         frames at once, one each (:mod:`fastdet.video.ahead`), unless patch
@@ -303,16 +305,28 @@ def process_video(source, target=None, detector=None, config=None, callback=None
         Standard output's reader closed it before the first frame; later, the
         run stops as after Ctrl-C and ``RunStats.reader_gone`` says so.
     """
-    warmup = int(warmup)
+    # Whole frame numbers: int() truncated start=1.5 to frame 1 before the
+    # source could refuse it.
+    start, warmup = whole_frame_number(start, "start"), whole_frame_number(warmup, "warmup")
     if warmup < 0:
         raise InputError(f"warmup must be >= 0, got {warmup}")
-    if callback is not None and not callable(callback):
-        raise InputError(f"callback must be callable, got {type(callback).__name__}")
+    for name, function in (("callback", callback), ("progress", progress), ("log", log),
+                           ("warm_up_notice", warm_up_notice)):
+        # Found here rather than as a TypeError on a stage thread mid-run.
+        if function is not None and not callable(function):
+            raise InputError(f"{name} must be callable, got {type(function).__name__}")
+    if not (detector is None or isinstance(detector, VideoPipeline)
+            or callable(getattr(detector, "hits", None))):
+        # A model path given here failed with an AttributeError deep in the pipeline.
+        raise InputError(f"detector must be a Detector or a VideoPipeline, not "
+                         f"{type(detector).__name__} (a model file: Detector(model=...))")
+    if isinstance(source, VideoSource):
+        _refuse_used_source(source)
     if target is None:
         refuse_encoder_options_without_video(codec, crf, preset)
     refuse_clashing_outputs(source, target, detections,
                             [config] if isinstance(config, (str, os.PathLike)) else [])
-    cores = threads or numba.config.NUMBA_NUM_THREADS
+    cores = run_cores(threads)
     stats = RunStats()
     conveyor = Conveyor()
     outputs = []
@@ -329,6 +343,9 @@ def process_video(source, target=None, detector=None, config=None, callback=None
                            and not debug_view)
             if isinstance(detector, VideoPipeline):
                 pipeline = detector
+                # A run starts at its video's beginning (or its warm-up frames),
+                # not where the pipeline's last video left its tracks and heat.
+                pipeline.reset()
             else:
                 pipeline = VideoPipeline(detector or Detector(
                     config=detector_config, threads=1 if frame_level else plan.detector),
@@ -344,10 +361,10 @@ def process_video(source, target=None, detector=None, config=None, callback=None
             if isinstance(source, VideoSource):
                 video = source
             else:
-                first = max(int(start) - warmup, 0)
+                first = max(start - warmup, 0)
                 video = stack.enter_context(VideoSource(source, first, end, timeout=timeout,
                                                         threads=plan.decoder, strict=strict))
-            first_output = max(int(start), video.start)
+            first_output = max(start, video.start)
             # An "auto" horizon: the camera's, from the file's first frames,
             # before anything is planned on it.
             stats.horizon = resolve_video_horizon(pipeline.detector, video, log)
@@ -436,6 +453,20 @@ def process_video(source, target=None, detector=None, config=None, callback=None
             _discard(outputs)
             raise
     return stats
+
+
+def _refuse_used_source(source):
+    """Raise :class:`InputError` for a source that cannot be read from its first frame.
+
+    A run counts frames from the source's ``start`` and warms up on its
+    first frame: a closed source, or one whose frames were read already,
+    failed with "a frame must be a numpy array, got NoneType".
+    """
+    if source.closed:
+        raise InputError(f"{source.name} is closed")
+    if source.frames_read:
+        raise InputError(f"{source.name}: {source.frames_read} frames were read already; "
+                         "process_video reads a source from its start (open it again)")
 
 
 def _discard(outputs):

@@ -135,6 +135,23 @@ def _frame_size(size):
     return int(width), int(height)
 
 
+def _time_base(time_base, rate):
+    """``time_base`` as a positive Fraction (``1 / rate`` for ``None``), or an
+    :class:`InputError`: 0 made every frame's timestamp a division by zero."""
+    if time_base is None:
+        return 1 / rate
+    try:
+        if isinstance(time_base, bool):
+            raise TypeError
+        value = Fraction(time_base)
+    except (TypeError, ValueError, OverflowError):
+        value = None
+    if value is None or value <= 0:
+        raise InputError(f"a video's time base must be a positive number of seconds, "
+                         f"got {time_base!r}")
+    return value
+
+
 def check_encoder(codec, crf=None, preset=None):
     """Open ``codec`` with these options on a tiny picture, to refuse bad ones before any work.
 
@@ -258,6 +275,7 @@ class VideoSink(StagedFile):
                  time_base=None, colour=None):
         # Checked before the temporary file exists.
         rate, size = _frame_rate(fps), _frame_size(size)
+        time_base = _time_base(time_base, rate)
         if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1:
             raise InputError(f"encoder threads must be a whole number >= 1, got {threads!r}")
         threads = int(threads)
@@ -281,7 +299,7 @@ class VideoSink(StagedFile):
         self._crf, self._preset = crf, preset
         self.size = size
         self.rate = rate
-        self.time_base = Fraction(time_base) if time_base is not None else 1 / self.rate
+        self.time_base = time_base
         self.frames = 0
         self._last_pts = None
         self._pts_shift = 0
@@ -330,6 +348,14 @@ class VideoSink(StagedFile):
         if context.options:
             # FFmpeg leaves the options it did not understand here, silently otherwise.
             raise ValueError(f"the encoder ignores {', '.join(sorted(context.options))}")
+        try:
+            # The header now, not with the first packet: a container that cannot
+            # hold the codec (AV1 or VP9 in .mov) said so, as "Invalid
+            # argument", only once the whole run had been done.
+            self._container.start_encoding()
+        except av.error.ArgumentError:
+            raise ValueError(f"a {container_format} file cannot hold {self.codec} (use .mp4 "
+                             "or .mkv)") from None
         self._stream = stream
 
     # -- writing --------------------------------------------------------------------
@@ -344,9 +370,18 @@ class VideoSink(StagedFile):
         pts : int, optional
             Presentation time in :attr:`time_base` units; default: one frame
             period after the previous frame.
+
+        Raises
+        ------
+        InputError
+            For a frame of another size or type, a ``pts`` that is not a whole
+            number, a closed sink, or a failed write.
         """
         if self.closed:
             raise InputError(f"the video {self.path} is closed")
+        if pts is not None and (isinstance(pts, bool) or not isinstance(pts, numbers.Integral)):
+            # int() truncated 1.7 and raised a bare ValueError for NaN.
+            raise InputError(f"a frame's pts is a whole number of time-base units, got {pts!r}")
         if isinstance(frame, np.ndarray):
             video_frame = self._from_bgr(frame)
         elif not isinstance(frame, av.VideoFrame):

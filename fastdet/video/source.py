@@ -30,7 +30,7 @@ import av
 
 from ..errors import InputError
 from .damage import InputDamage
-from .frame_arrays import FrameConverter
+from .frame_arrays import FrameConverter, upright
 from .seek import REORDER_SLACK, seek_point
 from .skipping import FrameSkipper, LeftOut
 
@@ -47,8 +47,9 @@ NETWORK_SCHEMES = LIVE_SCHEMES | {"http", "https"}
 DEFAULT_TIMEOUT = 10.0
 
 
-def _frame_index(value, option):
-    """A frame number: a whole number (``int(1.5)`` started a range at frame 1)."""
+def whole_frame_number(value, option):
+    """``value`` as an int, or an :class:`InputError` naming ``option`` when it is not a
+    whole number (``int(1.5)`` started a range at frame 1)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise InputError(f"{option} must be a whole number of frames, got {value!r}")
     return int(value)
@@ -190,7 +191,9 @@ class VideoSource:
     time_base : Fraction
         Unit of the frames' ``pts``.
     size : tuple of int
-        ``(width, height)``.
+        ``(width, height)`` as the video is shown: a video with a rotation
+        tag (display matrix, as phones record) is turned upright, frames and
+        size, as ``cv2.VideoCapture`` turns it.
     frame_count : int or None
         Frames in the whole stream as its header states them; ``None`` for a
         live source or when unknown.
@@ -234,8 +237,8 @@ class VideoSource:
         self._read_to_end = False
         #: Frames :meth:`decoded_frames` left undecoded (its ``needed`` ruled them out).
         self.frames_left_undecoded = 0
-        self.start = _frame_index(start, "--start")
-        self.end = None if end is None else _frame_index(end, "--end")
+        self.start = whole_frame_number(start, "--start")
+        self.end = None if end is None else whole_frame_number(end, "--end")
         if self.start < 0:
             raise InputError(f"--start must be >= 0, got {self.start}")
         if self.end is not None and self.end <= self.start:
@@ -383,7 +386,7 @@ class VideoSource:
                 yield from skipper.decoded(frame)
                 if frame.is_corrupt and self._index >= self.start:
                     self.damage.corrupt_frame(self._index)
-                yield frame
+                yield upright(frame)   # as players show it (a phone's portrait video)
 
     def _read_first(self):
         # Reading a frame is the only reliable test of "has frames": headers
@@ -434,6 +437,11 @@ class VideoSource:
         return None
 
     # -- frames ---------------------------------------------------------------------
+    @property
+    def closed(self):
+        """Whether :meth:`close` was called (its frames can no longer be read)."""
+        return getattr(self, "_container", None) is None
+
     @property
     def first_frame(self):
         """The first frame to yield as BGR, read at opening (``None`` once iteration began)."""

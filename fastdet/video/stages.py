@@ -25,16 +25,19 @@ from __future__ import annotations
 
 import contextlib
 import math
+import numbers
 import queue
 import signal
 import threading
 import time
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 from av.video.reformatter import VideoReformatter
 
 from ..detector.scoring import STAGES
+from ..errors import InputError
 from ..viz.draw import debug_frame, draw_detections_yuv420
 from .ahead import process_ahead
 from .frame_arrays import FrameConverter, plane_view
@@ -53,6 +56,9 @@ POLL_SECONDS = 0.1
 #: Marks the end of the frame stream.
 END = object()
 
+#: Most cores a run is planned for (``--threads``): beyond what any decoder, x264
+#: (128 threads at most) or frame-level detection can use.
+MAX_THREADS = 256
 #: Per-frame CPU milliseconds of each kind of work on one 1280x720 frame on one core, as
 #: measured on the development machine (README, "Video"); only their ratios matter.
 _DECODE_MS, _SEARCH_MS, _ENCODE_MS = 3.7, 4.5, 4.5
@@ -81,6 +87,37 @@ class ThreadPlan:
                if self.frames_at_once > 1 else "")
         return (f"threads: {self.cores} cores -> decoder {self.decoder}, detector "
                 f"{self.detector}{how}{encoder} (plus one light thread per stage)")
+
+
+def run_cores(threads=None):
+    """The cores a run may keep busy: ``threads``, checked.
+
+    Parameters
+    ----------
+    threads : int, optional
+        ``--threads`` (``None``: ``NUMBA_NUM_THREADS``, all cores by default).
+        More than the machine has is allowed (a plan for another machine),
+        up to :data:`MAX_THREADS`.
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    InputError
+        For anything but a whole number from 1 to :data:`MAX_THREADS` (0 and
+        2.5 were taken as the default and as 2; 100000 planned tens of
+        thousands of codec threads: "can't start new thread", or a decoder
+        that gave no frame and a process that never exited).
+    """
+    if threads is None:
+        return numba.config.NUMBA_NUM_THREADS
+    if isinstance(threads, bool) or not isinstance(threads, numbers.Integral):
+        raise InputError(f"--threads must be a whole number of cores, got {threads!r}")
+    if not 1 <= threads <= MAX_THREADS:
+        raise InputError(f"--threads must be 1-{MAX_THREADS}, got {threads}")
+    return int(threads)
 
 
 def plan_threads(cores, video=True, search_fraction=1.0):

@@ -326,3 +326,13 @@ def test_debug_view_draws_heat_inset_and_timings(fastdet, model_args, data_dir, 
     # The inset sits in the top-right corner and the timings in the top-left one.
     assert np.abs(a[:100, -300:] - b[:100, -300:]).mean() > 10
     assert np.abs(a[:60, :150] - b[:60, :150]).mean() > 10
+
+
+def test_more_threads_than_a_run_can_use_is_a_one_line_error(fastdet, stub_pipeline,
+                                                             block_video, tmp_path, capsys):
+    """``--threads 100000`` planned tens of thousands of decoder threads: "holds no frames"
+    and a process that never ended, or "internal error: can't start new thread"."""
+    out = tmp_path / "out.mp4"
+    assert fastdet(["run", str(block_video), "--out", str(out), "--threads", "100000"]) == 2
+    assert capsys.readouterr().err == "fastdet: error: --threads must be 1-256, got 100000\n"
+    assert list(tmp_path.iterdir()) == []

@@ -464,3 +464,30 @@ def test_evaluate_rejects_a_match_iou_outside_zero_one(iou):
 def test_evaluate_rejects_a_cover_outside_zero_one(cover):
     with pytest.raises(InputError, match="difficult_cover"):
         evaluate({}, {"a.jpg": []}, difficult_cover=cover)
+
+
+@pytest.mark.parametrize("text, key", [
+    ('{"images": {"frame0": [{"box": [0, 0, 10, 10]}], "frame0": []}}', "frame0"),
+    ('{"images": {"a.jpg": [{"box": [0, 0, 10, 10], "box": [5, 5, 20, 20]}]}}', "box"),
+    ('{"images": {"a.jpg": []}, "images": {}}', "images"),
+])
+def test_a_key_given_twice_is_an_error(tmp_path, text, key):
+    """JSON kept the last of them silently: a frame's boxes, or a first box, were lost."""
+    path = tmp_path / "a.json"
+    path.write_text(text)
+    with pytest.raises(InputError, match=f"a.json: '{key}' is given twice in one JSON object"):
+        load_annotations(path)
+
+
+@pytest.mark.parametrize("name", ["frame\u00b2", "frame\u0663"])
+def test_a_frame_number_is_ascii_digits(tmp_path, name):
+    """``"frame²"`` passed ``str.isdigit`` and crashed ``int`` (an internal error, exit
+    70); ``"frame٣"`` was read as frame 3.  Neither is a video frame's name."""
+    from fastdet.evaluation.annotations import frame_number
+    from fastdet.video.evaluate import frame_index
+
+    path = write(tmp_path, {"images": {name: [{"box": [0, 0, 10, 10]}]}})
+    assert list(load_annotations(path)) == [name]
+    assert frame_number(name) is None
+    with pytest.raises(InputError, match="video annotations name frames frame<N>"):
+        frame_index(name)

@@ -381,3 +381,79 @@ def test_frames_scored_at_once_equal_a_plain_loop(data_dir, detector, tmp_path, 
     at_once = 1 if track.get("tracking") else 2
     assert stats.plan.detector == 2 and stats.plan.frames_at_once == at_once
     assert ("2 frames at once" in notes[0]) == (at_once == 2), notes
+
+
+@pytest.mark.parametrize("arguments, message", [
+    ({"start": 1.5}, "start must be a whole number of frames, got 1.5"),
+    ({"start": 2, "warmup": 0.5}, "warmup must be a whole number of frames, got 0.5"),
+    ({"threads": 0}, "--threads must be 1-256, got 0"),
+    ({"threads": 2.5}, "--threads must be a whole number of cores, got 2.5"),
+    ({"threads": -4}, "--threads must be 1-256, got -4"),
+    ({"detector": "model.npz"}, "detector must be a Detector or a VideoPipeline, not str"),
+    ({"progress": 5}, "progress must be callable, got int"),
+    ({"log": "print"}, "log must be callable, got str"),
+])
+def test_process_video_refuses_arguments_it_would_truncate_or_trip_on(tmp_path, arguments,
+                                                                      message):
+    """start=1.5 began at frame 1 (int() before the source's check), threads=0 meant all
+    cores and 2.5 two, a model path failed with an AttributeError mid-pipeline, and a
+    progress that was no function with a TypeError on the first tick."""
+    clip = write_block_clip(tmp_path / "clip.mp4", 4)
+    arguments.setdefault("detector", VideoPipeline(BlockDetector()))
+    with pytest.raises(InputError, match=message):
+        process_video(clip, tmp_path / "out.mp4", detections=tmp_path / "d.jsonl", **arguments)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.mp4"]
+
+
+def write_block_clip(path, count):
+    frames, _ = moving_block(count)
+    with VideoSink(path, 10.0, (frames[0].shape[1], frames[0].shape[0])) as sink:
+        for frame in frames:
+            sink.write(frame)
+    return path
+
+
+def test_threads_have_an_upper_bound(tmp_path):
+    """``threads=100000`` gave FFmpeg tens of thousands of decoder threads: "can't start new
+    thread", or no frame decoded and a process that never ended.  The bound itself runs."""
+    from fastdet.video.stages import MAX_THREADS
+
+    clip = write_block_clip(tmp_path / "clip.mp4", 4)
+    with pytest.raises(InputError, match=f"--threads must be 1-{MAX_THREADS}, got 100000"):
+        process_video(clip, tmp_path / "out.mp4", VideoPipeline(BlockDetector()),
+                      threads=100000)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.mp4"]
+    stats = process_video(clip, tmp_path / "out.mp4", VideoPipeline(BlockDetector()),
+                          threads=MAX_THREADS)
+    assert stats.frames == 4 and stats.plan.cores == MAX_THREADS
+
+
+def test_a_source_closed_or_partly_read_is_refused(tmp_path):
+    """Its frames were counted from its start and its first frame (gone) warmed up the
+    kernels: "a frame must be a numpy array, got NoneType"."""
+    clip = write_block_clip(tmp_path / "clip.mp4", 4)
+    closed = VideoSource(clip)
+    closed.close()
+    with pytest.raises(InputError, match="clip.mp4 is closed"):
+        process_video(closed, None, VideoPipeline(BlockDetector()), detections=tmp_path / "d")
+    with VideoSource(clip) as started:
+        next(iter(started))
+        with pytest.raises(InputError, match="1 frames were read already"):
+            process_video(started, None, VideoPipeline(BlockDetector()),
+                          detections=tmp_path / "d")
+    assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize("track", [{}, {"every": 3, "tracking": True}],
+                         ids=["every frame", "every 3 + tracking"])
+def test_a_pipeline_used_again_starts_afresh(tmp_path, track):
+    """A second video through the same VideoPipeline began with the first one's smoothed
+    heat, tracks and ids: its detections were not those of a fresh run."""
+    clip = write_block_clip(tmp_path / "clip.mp4", 9)
+    pipeline = VideoPipeline(BlockDetector(), TrackConfig(**track))
+    outputs = []
+    for name in ("first.jsonl", "second.jsonl"):
+        process_video(clip, None, pipeline, detections=tmp_path / name)
+        outputs.append((tmp_path / name).read_text())
+    assert outputs[0] == outputs[1]
+    assert '"track": 1' in outputs[1]

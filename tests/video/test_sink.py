@@ -274,3 +274,31 @@ def test_a_frame_of_another_dtype_or_after_closing_is_named_as_such(tmp_path):
         sink.write(numbered_frame(1))
     with VideoSource(path) as video:
         assert [frame_number(frame[:SIZE[1], :SIZE[0]]) for frame in video] == [0]
+
+
+@pytest.mark.parametrize("codec", ["vp9", "av1"])
+def test_a_container_that_cannot_hold_the_codec_is_refused_at_opening(tmp_path, codec):
+    """AV1 or VP9 in .mov: refused at the first packet only, as "Invalid argument" (after a
+    whole run's work, from ``fastdet run``); now when the sink opens, saying what to use."""
+    with pytest.raises(InputError, match=f"a mov file cannot hold {codec} \\(use .mp4 or .mkv"):
+        VideoSink(tmp_path / "out.mov", 12, (64, 64), codec=codec)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("time_base", [0, -1, "x", True])
+def test_a_time_base_that_is_no_positive_number_is_refused(tmp_path, time_base):
+    """A time base of 0 opened a sink whose first write divided by zero."""
+    with pytest.raises(InputError, match="time base must be a positive number"):
+        VideoSink(tmp_path / "out.mp4", 12, SIZE, time_base=time_base)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("pts", [1.5, float("nan"), "3"])
+def test_a_pts_that_is_no_whole_number_is_refused(tmp_path, pts):
+    """int() truncated 1.5 and raised a bare ValueError for NaN."""
+    with VideoSink(tmp_path / "out.mp4", 12, SIZE) as sink:
+        sink.write(numbered_frame(0), pts=np.int64(0))
+        with pytest.raises(InputError, match="pts is a whole number"):
+            sink.write(numbered_frame(1), pts=pts)
+    with VideoSource(tmp_path / "out.mp4") as video:
+        assert [frame_number(frame) for frame in video] == [0]

@@ -309,3 +309,40 @@ def test_a_source_is_read_once_and_a_second_pass_says_so(clip, end):
         with pytest.raises(InputError, match=rf"clip\.mp4: all {len(rest) + 2} frames were read; "
                                              "open it again"):
             next(iter(video))
+
+
+def rotated_clip(path, degrees, size):
+    """A clip of ``numbered_frame`` whose display matrix turns it by ``degrees`` clockwise,
+    as a phone stores a portrait video (the track header's matrix, patched in place)."""
+    import struct
+
+    write_clip(path, 3, size=size)
+    one = 0x10000
+    a, b, c, d = {90: (0, one, -one, 0), 180: (-one, 0, 0, -one), 270: (0, -one, one, 0)}[degrees]
+    identity = struct.pack(">9i", one, 0, 0, 0, one, 0, 0, 0, 0x40000000)
+    data = path.read_bytes()
+    at = data.index(identity, data.index(b"tkhd"))
+    path.write_bytes(data[:at] + struct.pack(">9i", a, b, 0, c, d, 0, 0, 0, 0x40000000)
+                     + data[at + len(identity):])
+    return path
+
+
+@pytest.mark.parametrize("degrees", [90, 180, 270])
+@pytest.mark.parametrize("size", [(64, 48), (63, 47)], ids=["even", "odd"])
+def test_a_rotated_video_is_read_upright_as_opencv_reads_it(tmp_path, degrees, size):
+    """The frames were the stored, sideways pictures: the detector searched them sideways
+    and the annotated copy played sideways; cv2.VideoCapture (the promised pixels) and
+    players turn them by the display matrix."""
+    path = rotated_clip(tmp_path / "phone.mp4", degrees, size)
+    capture = cv2.VideoCapture(str(path))
+    expected = []
+    while (read := capture.read())[0]:
+        expected.append(read[1])
+    with VideoSource(path) as video:
+        frames = list(video)
+        turned = size[::-1] if degrees % 180 else size
+        assert video.size == turned
+    assert len(frames) == len(expected) == 3
+    for frame, reference in zip(frames, expected):
+        assert frame.shape == reference.shape == (turned[1], turned[0], 3)
+        assert np.abs(frame.astype(int) - reference).max() <= 2
