@@ -16,6 +16,7 @@ Two hold-out splits are used:
 
 from __future__ import annotations
 
+import os
 import re
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -50,6 +51,31 @@ def _natural_key(path):
             for part in re.split(r"(\d+)", str(path))]
 
 
+def _image_files(folder):
+    """Every PNG/JPG under ``folder``, at any depth, symbolic links to folders followed.
+
+    ``Path.rglob`` does not follow linked folders (before Python 3.13), so
+    a group linked in from elsewhere was left out without a word.  Each
+    folder is entered once, so a link to a parent ends instead of looping.
+    A folder that cannot be read is an error, not a group left out.
+    """
+    def refuse(error):
+        raise InputError(f"cannot list {error.filename}: {error.strerror or error}")
+
+    entered = set()
+    for root, folders, files in os.walk(folder, onerror=refuse, followlinks=True):
+        status = os.stat(root)
+        if (status.st_dev, status.st_ino) in entered:
+            folders[:] = []
+            continue
+        entered.add((status.st_dev, status.st_ino))
+        root = Path(root)
+        for name in files:
+            # Temporary files of outputs being written (or left by a killed run) are no crops.
+            if Path(name).suffix.lower() in IMAGE_SUFFIXES and not is_temporary(name):
+                yield root / name
+
+
 def list_dataset(data_dir, extra_negatives=()):
     """List the crops of a data set folder.
 
@@ -63,7 +89,18 @@ def list_dataset(data_dir, extra_negatives=()):
     Returns
     -------
     Dataset
+
+    Raises
+    ------
+    InputError
+        When a folder is missing or holds no PNG/JPG image.
+    TypeError
+        When ``extra_negatives`` is one path rather than an iterable of them.
     """
+    if isinstance(extra_negatives, (str, bytes, os.PathLike)):
+        # Iterated, a string is its characters: "/tmp/mined" listed "/", the whole file system.
+        raise TypeError(f"extra_negatives must be an iterable of folders, not one "
+                        f"{type(extra_negatives).__name__}: give [{str(extra_negatives)!r}]")
     data_dir = Path(data_dir)
     sources = [(data_dir / name, label, name) for name, label in CLASS_FOLDERS.items()]
     sources += [(Path(folder), 0, f"extra:{Path(folder).name}") for folder in extra_negatives]
@@ -71,10 +108,7 @@ def list_dataset(data_dir, extra_negatives=()):
     for folder, label, prefix in sources:
         if not folder.is_dir():
             raise InputError(f"training data folder not found: {folder}")
-        # Temporary files of outputs being written (or left by a killed run) are no crops.
-        found = sorted((p for p in folder.rglob("*")
-                        if p.suffix.lower() in IMAGE_SUFFIXES and not is_temporary(p)),
-                       key=_natural_key)
+        found = sorted(_image_files(folder), key=_natural_key)
         if not found:
             raise InputError(f"no PNG/JPG images under {folder}")
         for path in found:

@@ -17,6 +17,7 @@ keeps held-out frames out of the training data.
 from __future__ import annotations
 
 import contextlib
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -151,6 +152,58 @@ def background_hits(boxes, vehicles, max_iou=0.1, max_cover=0.5):
     return (iou.max(axis=1) < max_iou) & (cover.max(axis=1) < max_cover)
 
 
+def _frame_keys(source, annotations):
+    """The keys of ``source``'s frames that :func:`annotated_frames` would yield, unread."""
+    if Path(source).suffix.lower() in VIDEO_SUFFIXES:
+        return [key for key in annotations if frame_number(key) is not None]
+    return [Path(source).name] if Path(source).name in annotations else []
+
+
+def crop_prefixes(sources, annotations=None):
+    """The name each source's crops start with: its stem, made unique within the run.
+
+    Crops are ``<prefix>_<key>_<n>.png``.  The prefix is the source's stem,
+    or ``<stem>-2``, ``<stem>-3`` ... for a later source whose crops would
+    otherwise share names with an earlier one's: ``day1/clip.mp4`` and
+    ``day2/clip.mp4`` both wrote their ``frame0010`` crops to the same
+    files, the second replacing the first, and the count said more crops
+    were written than there were.
+
+    Parameters
+    ----------
+    sources : iterable
+        As for :func:`mine`.
+    annotations : dict, optional
+
+    Returns
+    -------
+    list of str
+        One prefix per source, in order.
+
+    Raises
+    ------
+    InputError
+        When one file is given twice (with annotated frames): its crops would
+        be mined, and counted, twice.
+    """
+    taken = {}
+    prefixes = []
+    for number, (source, truth_of) in enumerate(paired_sources(sources, annotations)):
+        keys = _frame_keys(source, truth_of or {})
+        stem = prefix = Path(source).stem
+        copy = 1
+        while any(f"{prefix}_{key}" in taken for key in keys):
+            earlier = next(taken[f"{prefix}_{key}"] for key in keys if f"{prefix}_{key}" in taken)
+            if os.path.realpath(earlier) == os.path.realpath(source):
+                raise InputError(f"{source} is given twice as a source: its frames would be "
+                                 f"mined twice")
+            copy += 1
+            prefix = f"{stem}-{copy}"
+        taken.update((f"{prefix}_{key}", source) for key in keys)
+        prefixes.append(prefix)
+    return prefixes
+
+
 def _missing_folders(folder):
     """``folder`` and those of its parents that do not exist yet, deepest first."""
     missing = []
@@ -174,7 +227,9 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
         As returned by :func:`fastdet.evaluation.annotations.load_annotations`,
         for the sources given as bare paths.
     out_dir : str or Path
-        Folder for the crops (created); files are ``<source>_<key>_<n>.png``.
+        Folder for the crops (created); files are ``<source>_<key>_<n>.png``,
+        ``<source>`` the source's stem (``<stem>-2`` for a second source of
+        that name, see :func:`crop_prefixes`).
     max_iou : float
         A hit whose IoU with every annotated box is below this is a negative
         (unless half of it or more lies on one of the boxes).
@@ -182,15 +237,29 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
     Returns
     -------
     MiningResult
+
+    Raises
+    ------
+    InputError
+        Before any frame is searched: for a source that is missing or a
+        folder, and for one given twice (:func:`crop_prefixes`); later, for a frame that cannot be read,
+        an annotated video frame past the video's end, no annotated frame
+        at all, or a crop that cannot be written.  Crops already saved are
+        removed again.
     """
+    # A list: the sources are gone through more than once, and a generator only once (it
+    # was used up by the checks, and nothing was mined).
+    sources = list(sources)
     check_sources(sources)
+    prefixes = crop_prefixes(sources, annotations)
     inputs = [source for source, _ in paired_sources(sources)]
     created = _missing_folders(out_dir)
     out_dir = output_folder(out_dir, "--out")
     frames = hits_total = 0
     saved = []
     try:
-        for source, truth_of in paired_sources(sources, annotations):
+        pairs = paired_sources(sources, annotations)
+        for prefix, (source, truth_of) in zip(prefixes, pairs):
             for key, frame in annotated_frames(source, truth_of):
                 frames += 1
                 hits = detector.hits(frame)
@@ -202,7 +271,7 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
                     x1, y1, x2, y2 = (int(v) for v in box)
                     crop = cv2.resize(frame[y1:y2, x1:x2], (WINDOW, WINDOW),
                                       interpolation=cv2.INTER_AREA)
-                    path = output_in_folder(out_dir, f"{Path(source).stem}_{key}_{n:03d}.png")
+                    path = output_in_folder(out_dir, f"{prefix}_{key}_{n:03d}.png")
                     refuse_overwriting_inputs(path, inputs)
                     write_image(path, crop)
                     saved.append(path)

@@ -18,8 +18,9 @@ from ..detector.config import DetectorConfig
 from ..detector.detector import Detector
 from ..detector.features import COLOR_CODES, FeatureLayout, FeatureOptions, features_of_crops
 from ..detector.model import Model
+from ..errors import InputError
 from .dataset import leak_free_folds, list_dataset, load_crops, random_split
-from .train import _fit_and_score
+from .train import _checked_C, _checked_integer, _fit_and_score, check_splits
 
 FEATURE_SETS = {
     "HOG": {"spatial": False, "hist": False},
@@ -89,14 +90,29 @@ def compare(data_dir, base_options=None, color_spaces=None, C=1e-3, flip=False, 
     Returns
     -------
     list of StudyRow
+
+    Raises
+    ------
+    InputError
+        Before any crop is read, as :func:`~.train.train` refuses them: a
+        ``C`` that is not one finite number above 0, a ``seed`` outside
+        ``0 .. 2**32 - 1`` and a data set with too few crops for its splits.
     """
     base = base_options or FeatureOptions()
     log = log or (lambda message: None)
+    C = _checked_C(C)
+    if isinstance(C, tuple):
+        raise InputError("the study trains every combination with one C, not a grid")
+    seed = _checked_integer("seed", seed, 0, 2**32 - 1)
     dataset = list_dataset(data_dir)
-    crops = load_crops(dataset.paths)
     labels = dataset.labels
     random_test = random_split(labels, seed=seed)
-    leak_free_train = leak_free_folds(dataset.groups) != 0
+    folds = leak_free_folds(dataset.groups)
+    # The crops are read, and features extracted for seven colour spaces, only for data that
+    # can be fit and tested on.
+    check_splits(data_dir, labels, folds, 0, random_test)
+    leak_free_train = folds != 0
+    crops = load_crops(dataset.paths)
     frame = np.random.default_rng(seed).integers(0, 256, (720, 1280, 3), dtype=np.uint8)
     rows = []
     for color_space in color_spaces or COLOR_CODES:

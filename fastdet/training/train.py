@@ -209,6 +209,86 @@ def check_source_holdout(labels, sources):
                              f"found: {found})")
 
 
+def _checked_C(C):
+    """``C`` as a float, or a grid as a tuple of floats; InputError if not finite and above 0."""
+    grid = np.ndim(C) > 0
+    values = list(C) if grid else [C]
+    if grid and not values:
+        raise InputError("C is an empty grid: give one value or several to cross-validate")
+    for value in values:
+        # Booleans are numbers to Python, and a string is no number even if it reads as one.
+        number = (isinstance(value, (int, float, np.integer, np.floating))
+                  and not isinstance(value, bool))
+        if not (number and np.isfinite(value) and value > 0):
+            raise InputError(f"C must be a finite number above 0, got {value!r}")
+    values = [float(value) for value in values]
+    return tuple(values) if grid else values[0]
+
+
+def _checked_integer(name, value, low, high=None):
+    """``value`` as an int within ``low .. high``, else an InputError naming ``name``."""
+    whole = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    if not whole or value < low or (high is not None and value > high):
+        span = (f"an integer of at least {low}" if high is None
+                else f"an integer from {low} to {high}")
+        raise InputError(f"{name} must be {span}, got {value!r}")
+    return int(value)
+
+
+def _checked_flag(name, value):
+    """``value`` as a bool (NumPy's too), else an InputError: ``"no"`` was taken as true."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise InputError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def check_splits(data_dir, labels, folds, test_fold, random_test, cross_validated=False):
+    """Raise :class:`InputError` unless every split has crops to test on and both classes to fit.
+
+    Checked on the listing, before the crops are read: with one crop a
+    class the leak-free test fold took every crop and the fit failed after
+    feature extraction (an internal error), and with two a class the random
+    split held out none, reporting an accuracy of NaN.
+
+    Parameters
+    ----------
+    data_dir : str or Path
+        Named in the message.
+    labels : ndarray of int
+    folds : ndarray of int
+        Leak-free fold of every crop (:func:`~.dataset.leak_free_folds`).
+    test_fold : int
+    random_test : ndarray of bool
+        The random split's test mask (:func:`~.dataset.random_split`).
+    cross_validated : bool
+        Also check every inner fold of :func:`cross_validate`.
+    """
+    labels = np.asarray(labels)
+    few = f"too few crops in {data_dir}"
+
+    def check_fit(train_mask, split):
+        missing = [name for label, name in ((1, "vehicle"), (0, "non-vehicle"))
+                   if not np.any(labels[train_mask] == label)]
+        if missing:
+            raise InputError(f"{few}: {split} leaves no {' and no '.join(missing)} crop to "
+                             f"train on")
+
+    if not random_test.any():
+        raise InputError(f"{few}: the random split holds out 20 % of each class, which rounds "
+                         f"to none of {int(labels.sum())} vehicles and "
+                         f"{int((labels == 0).sum())} non-vehicles (it needs 3 of a class)")
+    check_fit(~random_test, "the random split")
+    test = folds == test_fold
+    if not test.any():
+        raise InputError(f"{few}: leak-free fold {test_fold} is empty (every group has fewer "
+                         f"crops than folds); give fewer folds or test fold 0")
+    check_fit(~test, f"holding out leak-free fold {test_fold}")
+    if cross_validated:
+        for fold in np.unique(folds[~test]):
+            check_fit(~test & (folds != fold),
+                      f"cross-validation holding out folds {test_fold} and {fold}")
+
+
 def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, seed=0,
           extra_negatives=(), log=None, return_test_scores=False, jitter=True,
           photometric=Photometric(), hold_out_sources=False):
@@ -251,8 +331,40 @@ def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, se
         Fit on the leak-free training part; ``model.report`` has the figures.
     (scores, labels) : tuple of ndarray
         Only with ``return_test_scores``.
+
+    Raises
+    ------
+    InputError
+        Before any crop is read: for a ``C`` that is not a finite number
+        above 0 (or an empty grid), ``n_folds`` below 2, a ``test_fold``
+        outside ``0 .. n_folds - 1``, a ``seed`` outside ``0 .. 2**32 - 1``,
+        flags that are not booleans, a data set folder that cannot be listed
+        and one with too few crops for its splits (a split with no crop to
+        test on, or a training part without both classes); later, for a crop
+        that cannot be read.
+    TypeError
+        When ``options`` is not a :class:`FeatureOptions`, ``photometric``
+        not a :class:`Photometric` or ``extra_negatives`` a single path.
     """
-    options = options or FeatureOptions()
+    options = FeatureOptions() if options is None else options
+    if not isinstance(options, FeatureOptions):
+        raise TypeError(f"options must be a FeatureOptions, got {type(options).__name__}"
+                        + (" (FeatureOptions.from_dict reads a dict)"
+                           if isinstance(options, dict) else ""))
+    if photometric is not None and not isinstance(photometric, Photometric):
+        raise TypeError(f"photometric must be a Photometric or None, got "
+                        f"{type(photometric).__name__}")
+    # Plain Python values: they go into the report, which the model file holds as JSON
+    # (a NumPy float32 C trained, and then the model could not be saved).
+    C = _checked_C(C)
+    n_folds = _checked_integer("n_folds", n_folds, 2)
+    test_fold = _checked_integer("test_fold", test_fold, 0, n_folds - 1)
+    # LinearSVC takes seeds up to 2**32 - 1 only, and its fit comes after the features.
+    seed = _checked_integer("seed", seed, 0, 2**32 - 1)
+    flip, jitter, hold_out_sources, return_test_scores = (
+        _checked_flag(name, value) for name, value in (
+            ("flip", flip), ("jitter", jitter), ("hold_out_sources", hold_out_sources),
+            ("return_test_scores", return_test_scores)))
     log = log or (lambda message: None)
     started = time.perf_counter()
     dataset = list_dataset(data_dir, extra_negatives)
@@ -260,6 +372,10 @@ def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, se
     crop_sources = np.array([source_of(g) for g in dataset.groups])
     if hold_out_sources:
         check_source_holdout(dataset.labels, crop_sources)
+    labels = dataset.labels
+    folds = leak_free_folds(dataset.groups, n_folds)
+    random_test = random_split(labels, seed=seed)
+    check_splits(data_dir, labels, folds, test_fold, random_test, cross_validated=np.ndim(C) > 0)
     crops = load_crops(dataset.paths)
     loaded = time.perf_counter()
     features = features_of_crops(crops, options)
@@ -272,15 +388,12 @@ def train(data_dir, options=None, C=0.001, flip=True, n_folds=5, test_fold=0, se
     flips = copies
     extracted = time.perf_counter()
     log(f"features: {features.shape[1]} per crop, {extracted - loaded:.1f} s")
-    labels = dataset.labels
-    folds = leak_free_folds(dataset.groups, n_folds)
     cv_report = None
     if np.ndim(C) > 0:
         cv_report = cross_validate(features, labels, folds, test_fold, flips, list(C), seed, log)
         C = cv_report["C"]
         log(f"chosen C={C:g}, decision threshold {cv_report['threshold']:+.3f}")
 
-    random_test = random_split(labels, seed=seed)
     _, _, random_report, _ = _fit_and_score(features, labels, ~random_test, flips, C, seed)
     log(f"random split: accuracy {random_report['accuracy']:.4f}")
     train_mask = folds != test_fold

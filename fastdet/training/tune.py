@@ -121,6 +121,8 @@ def tune(model, sources, annotations, base_config=None, grid=None, log=None, jit
     if base.search.auto_horizon:
         raise ConfigError('fastdet tune searches a numeric horizon: set [search] horizon to a '
                           'number, not "auto"')
+    # A list: a generator of sources was used up by the check, leaving no frame to tune on.
+    sources = list(sources)
     check_sources(sources)
     grid = grid or DEFAULT_GRID
     lowest = min(grid["decision_threshold"])

@@ -8,6 +8,7 @@ writing half of its outputs -- or overwrote one of its inputs.
 from __future__ import annotations
 
 import json
+import os
 import tomllib
 
 import cv2
@@ -298,3 +299,65 @@ def test_an_annotated_frame_past_the_videos_end_is_refused(capsys, tmp_path, gen
     err = one_line_error(capsys)
     assert "ends before its annotated frame frame5000" in err
     assert not out.exists()
+
+
+# -- too few crops, names that clash, names checked first -----------------------
+@pytest.mark.parametrize("extra", [[], ["--compare"]])
+def test_train_refuses_one_crop_a_class_in_one_line(capsys, tmp_path, extra):
+    """One crop a class left the fit nothing to train on: an internal error (exit 70)."""
+    rng = np.random.default_rng(0)
+    make_crops(tmp_path / "one" / "vehicles", 1, 1, rng)
+    make_crops(tmp_path / "one" / "non-vehicles", 0, 1, rng)
+    out = [] if extra else ["--out", str(tmp_path / "m.npz")]
+    assert main(["train", str(tmp_path / "one"), *FAST, *out, *extra]) == EXIT_ERROR
+    assert f"too few crops in {tmp_path / 'one'}" in one_line_error(capsys)
+    assert not (tmp_path / "m.npz").exists()
+
+
+def test_mine_writes_every_crop_of_two_sources_of_one_name(capsys, tmp_path,
+                                                             generous_model):
+    """day1/b.png and day2/b.png: the second's crops replaced the first's, the count lied."""
+    sources, annotation_files = [], []
+    for day in ("day1", "day2"):
+        (tmp_path / day).mkdir()
+        annotation_files.append(str(annotated_blocks(tmp_path / day)))
+        sources.append(str(tmp_path / day / "b.png"))
+    out = tmp_path / "mined"
+    assert main(["mine", *sources, "--annotations", *annotation_files, "--out", str(out),
+                 "--model", str(generous_model)]) == 0
+    written = len(list(out.iterdir()))
+    assert capsys.readouterr().out.startswith(f"{written} hard negatives from ")
+    assert written > 0 and len(list(out.glob("b-2_b.png_*.png"))) == written // 2
+
+
+def test_detect_checks_every_image_name_before_any_work(capsys, tmp_path, generous_model):
+    """A missing last name stopped detect after every other image was searched and drawn."""
+    annotated_blocks(tmp_path)
+    folder = tmp_path
+    os.mkfifo(tmp_path / "pipe.png")
+    out = tmp_path / "drawn"
+    for bad, message in ((tmp_path / "nope.png", "image not found"),
+                         ("-", "not standard input ('-')"),
+                         (tmp_path / "pipe.png", "is not a regular file")):
+        assert main(["detect", str(folder / "a.png"), str(bad), "--out-dir", str(out),
+                     "--model", str(generous_model)]) == EXIT_ERROR
+        captured = capsys.readouterr()
+        assert message in captured.err and captured.err.startswith("fastdet: error: ")
+        assert captured.out == ""                  # no image was searched
+        assert not out.exists()
+
+
+def test_detect_refuses_a_drawing_name_opencv_cannot_write_before_any_work(capsys, tmp_path,
+                                                                          generous_model):
+    """An image named without a suffix was searched; only writing its drawing failed."""
+    annotated_blocks(tmp_path)
+    (tmp_path / "frame").write_bytes((tmp_path / "b.png").read_bytes())
+    out = tmp_path / "drawn"
+    assert main(["detect", str(tmp_path / "a.png"), str(tmp_path / "frame"), "--out-dir",
+                 str(out), "--model", str(generous_model)]) == EXIT_ERROR
+    captured = capsys.readouterr()
+    assert captured.out == "" and not out.exists()
+    assert captured.err.startswith(f"fastdet: error: cannot draw {tmp_path / 'frame'} to ")
+    assert "no writer for 'a name without a suffix'" in captured.err
+    # Without --out-dir nothing is written, and the image is read by its content.
+    assert main(["detect", str(tmp_path / "frame"), "--model", str(generous_model)]) == 0
