@@ -112,7 +112,8 @@ def add_encoder_options(parser):
     crfs = ", ".join(f"{codec} {crf}" for codec, crf in DEFAULT_CRF.items() if codec != "mp4v")
     presets = ", ".join(f"{codec} {preset}" for codec, preset in DEFAULT_PRESET.items())
     parser.add_argument("--codec", choices=tuple(ENCODERS), default="h264",
-                        help="codec of the annotated video (default h264: plays everywhere)")
+                        help="codec of the annotated video (default h264, which plays "
+                             "everywhere; vp9 in a .webm, which holds only vp9 and av1)")
     parser.add_argument("--crf", type=int, metavar="Q",
                         help=f"quality, lower is better and bigger (default: {crfs}; mp4v: "
                              f"quantiser {'-'.join(map(str, CRF_RANGE['mp4v']))}, default "

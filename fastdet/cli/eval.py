@@ -47,7 +47,8 @@ def add_eval_parser(subparsers):
 
 def cmd_eval(args):
     """Detect (or track) on every annotated frame and print the report."""
-    from ..evaluation.annotations import load_annotations, load_splits, select_split
+    from ..evaluation.annotations import (load_annotations, load_splits, select_split,
+                                          tracked_identities)
     from ..evaluation.matching import DIFFICULT_COVER
     from ..evaluation.metrics import evaluate
 
@@ -55,6 +56,11 @@ def cmd_eval(args):
         raise InputError(f"--iou must be in (0, 1], got {args.iou}")
     annotations = select_split(load_annotations(args.annotations), load_splits(args.annotations),
                                args.split)
+    if not annotations:
+        # Every figure would be n/a, exit 0: an empty file or split is a mistake.
+        chosen = "" if args.split is None else f" in split {args.split!r}"
+        raise InputError(f"{args.annotations}: no annotated image or frame{chosen}: nothing "
+                         f"to evaluate")
     source = Path(args.source)
     cover = None if args.voc else DIFFICULT_COVER
     if source.is_dir():
@@ -63,7 +69,9 @@ def cmd_eval(args):
         results = _detect_images(make_detector(args), source, annotations)
         tracking = None
     elif source.is_file():
-        results, tracking = _track_video(args, source, annotations, cover)
+        # Before the run: ids on only some vehicles would drop the tracking figures.
+        with_ids = tracked_identities(annotations, args.annotations, args.split)
+        results, tracking = _track_video(args, source, annotations, cover, with_ids)
     else:
         raise InputError(f"no such folder or video: {source}")
     report = evaluate(results, annotations, iou_threshold=args.iou, difficult_cover=cover)
@@ -122,8 +130,8 @@ def _detect_images(detector, image_dir, annotations):
     return results
 
 
-def _track_video(args, video, annotations, cover):
-    """Detections of the annotated frames, and the tracking report when ids are given."""
+def _track_video(args, video, annotations, cover, with_ids):
+    """Detections of the annotated frames, and the tracking report when ``with_ids``."""
     from ..video.evaluate import track_annotated_frames
     from ..video.horizon import resolve_video_horizon
     from ..video.source import VideoSource
@@ -142,8 +150,6 @@ def _track_video(args, video, annotations, cover):
             warm_up(first_frame)
     tracked = track_annotated_frames(pipeline, video, annotations)
     results = {name: (d.xyxy, d.score) for name, d in tracked.items()}
-    with_ids = all(obj["id"] is not None
-                   for objects in annotations.values() for obj in objects if not obj["difficult"])
     if not with_ids:
         return results, None
     from ..evaluation.mot import tracking_metrics

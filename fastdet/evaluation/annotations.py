@@ -133,6 +133,52 @@ def select_split(annotations, splits, name):
     return {image: annotations[image] for image in splits[name]}
 
 
+def tracked_identities(annotations, path, split=None):
+    """Whether the annotations carry identities for the tracking metrics.
+
+    Every vehicle that is not ``difficult`` needs an ``id`` for them
+    (difficult vehicles are left out of the tracking metrics, so they may
+    go without one); without any ``id`` only the detection figures are
+    reported.
+
+    Parameters
+    ----------
+    annotations : dict
+        As :func:`load_annotations` (or :func:`select_split`) returns them.
+    path : str or Path
+        The annotation file, for the message.
+    split : str, optional
+        The split they were selected by, for the message.
+
+    Returns
+    -------
+    bool
+        True when every non-difficult vehicle has an ``id`` (also when there
+        are none), False when no vehicle has one.
+
+    Raises
+    ------
+    InputError
+        When some vehicles have an ``id`` and a non-difficult one has none:
+        the tracking figures were silently dropped.
+    """
+    order = sorted(annotations, key=lambda name: (frame_number(name) is None,
+                                                  frame_number(name) or 0, name))
+    vehicles = [(name, index, obj) for name in order
+                for index, obj in enumerate(annotations[name]) if not obj["difficult"]]
+    lacking = [(name, index) for name, index, obj in vehicles if obj["id"] is None]
+    if not lacking:
+        return True
+    if not any(obj["id"] is not None for objects in annotations.values() for obj in objects):
+        return False
+    name, index = lacking[0]
+    within = "" if split is None else f" of split {split!r}"
+    raise InputError(f"{path}: {len(vehicles) - len(lacking)} of {len(vehicles)} vehicles{within} "
+                     f"that are not difficult have an \"id\" and images[{name!r}][{index}] has "
+                     f"none: the tracking metrics need one on every such vehicle (or none on "
+                     f"any, for the detection figures only)")
+
+
 def _read(path):
     path = Path(path)
     if path.is_dir():

@@ -23,7 +23,6 @@ from ..detector.detector import Detector
 from ..errors import InputError
 from ..files.atomic import refuse_overwriting_inputs, same_file
 from .ahead import can_look_ahead
-from .codecs import DEFAULT_CODEC
 from .config import TrackConfig, load_track_config
 from .detection_files import DetectionWriter
 from .horizon import resolve_video_horizon
@@ -254,7 +253,8 @@ def process_video(source, target=None, detector=None, config=None, callback=None
         temporal state a run from the beginning would have had (a batch runner
         splits a video into ranges this way).
     codec, crf, preset : str, int, str, optional
-        See :class:`VideoSink` (default: H.264 at its defaults).  Without a
+        See :class:`VideoSink` (default: the container's codec at its
+        defaults, H.264 but for VP9 in a ``.webm``).  Without a
         ``target`` they would decide nothing: giving one is an
         :class:`InputError`.
     threads : int, optional
@@ -372,8 +372,7 @@ def process_video(source, target=None, detector=None, config=None, callback=None
             sink = writer = None
             with guard.deferred():
                 if target is not None:
-                    sink = VideoSink(target, video.rate, video.size,
-                                     DEFAULT_CODEC if codec is None else codec, crf, preset,
+                    sink = VideoSink(target, video.rate, video.size, codec, crf, preset,
                                      threads=plan.encoder, time_base=video.time_base,
                                      colour=None if debug_view else video.colour)
                     outputs.append(sink)

@@ -5,7 +5,8 @@ objects) to a temporary file beside the destination and renames it into
 place when complete (:class:`~fastdet.files.atomic.StagedFile`).  The default
 is what every browser and most tools play: H.264 (libx264), yuv420p, in an
 MP4 whose index (the moov atom) comes before the media data (``+faststart``),
-so the file streams.
+so the file streams.  A ``.webm`` is VP9 (libvpx-vp9) by default, WebM's own
+codec; a codec the container cannot hold is refused at opening.
 
 Odd sizes: yuv420p stores colour at half resolution, so H.264, HEVC, AV1,
 VP9 and MPEG-4 need an even width and height.  A frame with an odd width or
@@ -61,6 +62,16 @@ FRAGMENTED = "frag_keyframe+empty_moov+default_base_moof"
 STREAMED_CONTAINER = "mp4"
 #: Containers that must seek back to finish (their index at the end): files only.
 NEEDS_SEEKING = frozenset({"avi"})
+#: The codecs each container holds, the natural one first: a container's first is the
+#: codec of a video written there without one chosen (WebM holds only VP9 and AV1,
+#: so a .webm is VP9; everything else is H.264).  FFmpeg's muxers refuse the others,
+#: or (AV1 and VP9 in MPEG-TS) write them as a data stream no player shows.
+HOLDS = {"mp4": ("h264", "hevc", "av1", "vp9", "mp4v"), "mov": ("h264", "hevc", "mp4v"),
+         "matroska": ("h264", "hevc", "av1", "vp9", "mp4v"), "webm": ("vp9", "av1"),
+         "avi": ("h264", "mp4v", "av1", "vp9"), "mpegts": ("h264", "hevc", "mp4v")}
+#: What the containers are called in messages.
+CONTAINER_NAMES = {"mp4": "MP4", "mov": "QuickTime (.mov)", "matroska": "Matroska (.mkv)",
+                   "webm": "WebM", "avi": "AVI", "mpegts": "MPEG-TS (.ts)"}
 
 # FFmpeg's colour tags (AVColorSpace etc.): what the BGR -> YUV conversion used.
 _BT709, _UNSPECIFIED, _SMPTE170M, _LIMITED_RANGE = 1, 2, 6, 1
@@ -236,13 +247,16 @@ class VideoSink(StagedFile):
     Parameters
     ----------
     path : str or Path
-        Destination; its suffix chooses the container (``.mp4``, ``.mov``,
-        ``.mkv``, ``.webm``, ``.avi``).
+        Destination; its suffix chooses the container (``.mp4``, ``.m4v``,
+        ``.mov``, ``.mkv``, ``.webm``, ``.avi``, ``.ts``).
     fps : float or Fraction
         Nominal frame rate (``Fraction(30000, 1001)`` for 29.97).
     size : tuple of int
         ``(width, height)`` of the frames to be written (odd sides are padded).
-    codec : {'h264', 'hevc', 'av1', 'vp9', 'mp4v'}
+    codec : {'h264', 'hevc', 'av1', 'vp9', 'mp4v'}, optional
+        Default: the container's own, H.264 but for VP9 in WebM (which holds
+        only VP9 and AV1).  A codec the container cannot hold (:data:`HOLDS`)
+        is refused here, saying which would do.
     crf : int, optional
         Quality (lower is better and bigger); for mp4v the fixed quantiser.
     preset : str, optional
@@ -252,14 +266,17 @@ class VideoSink(StagedFile):
     time_base : Fraction, optional
         Unit of the ``pts`` given to :meth:`write` (default ``1 / fps``).
     colour : tuple of int, optional
-        The input's colour tags (:attr:`VideoSource.colour`), kept in the
+        The input's colour tags, ``(matrix, range)`` as
+        :attr:`VideoSource.colour` gives them, kept in the
         output so that its decoded frames pass through unconverted.
         Default: BT.601 limited range, what BGR frames are converted with.
 
     Raises
     ------
     InputError
-        When the destination cannot be written or the codec cannot be opened.
+        When the destination cannot be written, its name has no suffix the
+        container is chosen by, the container cannot hold the codec, the
+        codec cannot be opened, or an argument has a value it cannot have.
 
     Examples
     --------
@@ -271,7 +288,7 @@ class VideoSink(StagedFile):
     #: Whether the output is standard output and its reader closed it (``| head``).
     reader_gone = False
 
-    def __init__(self, path, fps, size, codec=DEFAULT_CODEC, crf=None, preset=None, threads=1,
+    def __init__(self, path, fps, size, codec=None, crf=None, preset=None, threads=1,
                  time_base=None, colour=None):
         # Checked before the temporary file exists.
         rate, size = _frame_rate(fps), _frame_size(size)
@@ -279,17 +296,26 @@ class VideoSink(StagedFile):
         if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1:
             raise InputError(f"encoder threads must be a whole number >= 1, got {threads!r}")
         threads = int(threads)
+        colour = _checked_colour(colour)
+        container_format = _container_format(path)
+        if codec is None:
+            codec = _natural_codec(path, container_format)
         options = codec_options(codec, crf, preset, threads)
+        if container_format is not None and codec not in HOLDS[container_format]:
+            # FFmpeg refuses most of these at opening, without saying what would do;
+            # AV1 and VP9 in MPEG-TS it wrote as a stream no player shows.
+            raise InputError(f"cannot write {path}: {_cannot_hold(container_format, codec)}")
         least = MIN_SIDE.get(codec, 1)
         if min(even(size[0]), even(size[1])) < least:
             raise InputError(f"the {codec} encoder needs at least {least} pixels on each side, "
                              f"got {size[0]}x{size[1]} (choose another --codec)")
         super().__init__(path)
-        container_format = _container_format(path, self.in_place)
         if container_format is None:
-            self.discard()
-            raise InputError(f"cannot write a video to {path} (unsupported suffix; use one of "
-                             f"{', '.join(CONTAINERS)})")
+            if self.in_place and not Path(path).suffix:
+                container_format = STREAMED_CONTAINER    # /dev/null, a FIFO named ff
+            else:
+                self.discard()
+                raise InputError(_unsupported_name(path))
         if self.in_place and container_format in NEEDS_SEEKING:
             self.discard()
             raise InputError(f"cannot write {path}: {container_format.upper()} cannot be "
@@ -350,12 +376,11 @@ class VideoSink(StagedFile):
             raise ValueError(f"the encoder ignores {', '.join(sorted(context.options))}")
         try:
             # The header now, not with the first packet: a container that cannot
-            # hold the codec (AV1 or VP9 in .mov) said so, as "Invalid
-            # argument", only once the whole run had been done.
+            # hold the codec (AV1 or VP9 in .mov, before HOLDS) said so, as
+            # "Invalid argument", only once the whole run had been done.
             self._container.start_encoding()
         except av.error.ArgumentError:
-            raise ValueError(f"a {container_format} file cannot hold {self.codec} (use .mp4 "
-                             "or .mkv)") from None
+            raise ValueError(_cannot_hold(container_format, self.codec)) from None
         self._stream = stream
 
     # -- writing --------------------------------------------------------------------
@@ -481,17 +506,78 @@ class VideoSink(StagedFile):
                 handle.close()
 
 
-def _container_format(path, in_place):
-    """The container for ``path``: its suffix's; ``-`` and a suffix-less FIFO or device get MP4.
+def _container_format(path):
+    """The container for ``path``: its suffix's; ``-`` gets MP4.
 
-    A stream has no name to choose by (``/dev/stdout``, ``/dev/null``, a
-    FIFO named ``ff``), and fragmented MP4 is what ``-`` is given.  ``None``
-    for a suffix fastdet cannot write.
+    ``None`` for a name without a suffix (a FIFO or device without one,
+    ``/dev/null`` or a FIFO named ``ff``, is then given MP4 as ``-`` is:
+    a stream has no name to choose by) or with a suffix fastdet cannot write.
     """
-    suffix = Path(path).suffix.lower()
-    if str(path) == STDOUT or (in_place and not suffix):
+    if str(path) == STDOUT:
         return STREAMED_CONTAINER
-    return CONTAINERS.get(suffix)
+    return CONTAINERS.get(Path(path).suffix.lower())
+
+
+def _natural_codec(path, container_format):
+    """The codec of a video written to ``path`` when none is chosen: the container's own.
+
+    H.264 everywhere but WebM, which holds only VP9 and AV1: VP9 there, the
+    format's usual codec, or an :class:`InputError` suggesting ``--codec``
+    when this FFmpeg cannot encode it.
+    """
+    if container_format != "webm":
+        return DEFAULT_CODEC
+    natural = HOLDS["webm"][0]
+    if ENCODERS[natural] not in av.codecs_available:
+        others = [codec for codec in HOLDS["webm"] if ENCODERS[codec] in av.codecs_available]
+        instead = f"give --codec {_either(others)}, or write" if others else "write"
+        raise InputError(f"cannot write {path}: a WebM video is {natural} unless --codec says "
+                         f"otherwise, and this FFmpeg cannot encode {natural} "
+                         f"({ENCODERS[natural]} is missing): {instead} .mp4 or .mkv")
+    return natural
+
+
+def _cannot_hold(container_format, codec):
+    """Why ``codec`` cannot go into ``container_format``, and what would do instead."""
+    usable = [other for other in HOLDS[container_format]
+              if ENCODERS[other] in av.codecs_available]
+    instead = f"--codec {_either(usable)}, or write " if usable else "write "
+    return (f"the {CONTAINER_NAMES[container_format]} format cannot hold {codec} (use "
+            f"{instead}.mp4 or .mkv)")
+
+
+def _either(names):
+    """``a``, ``a or b``, ``a, b or c``."""
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} or {names[-1]}"
+
+
+def _unsupported_name(path):
+    """The message for a name no container is chosen by."""
+    name = Path(path).name
+    if not Path(path).suffix and name.lower() in CONTAINERS:
+        # ".mp4": a hidden file's name, all stem and no suffix (an empty $NAME.mp4).
+        return (f"cannot write a video to {path}: {name} is a hidden file's name with no "
+                f"suffix (its dot starts the name); name the video, e.g. video{name}")
+    problem = "unsupported suffix" if Path(path).suffix else "the name has no suffix"
+    return f"cannot write a video to {path} ({problem}; use one of {', '.join(CONTAINERS)})"
+
+
+def _checked_colour(colour):
+    """``colour`` as ``(matrix, range)`` ints (``None`` kept), or an :class:`InputError`.
+
+    ``colour=5`` raised a bare TypeError; ``"x"`` and ``(1,)`` were taken.
+    """
+    if colour is None:
+        return None
+    try:
+        matrix, colour_range = colour
+    except (TypeError, ValueError):
+        matrix = colour_range = None
+    if not all(isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= 0
+               for v in (matrix, colour_range)):
+        raise InputError(f"colour is the (matrix, range) pair of FFmpeg's colour tags, as "
+                         f"VideoSource.colour gives it, got {colour!r}")
+    return int(matrix), int(colour_range)
 
 
 def _colour_tags(colour):

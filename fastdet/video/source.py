@@ -45,6 +45,8 @@ LIVE_SCHEMES = frozenset({"udp", "rtp", "rtsp", "rtsps", "rtmp", "srt", "tcp"})
 NETWORK_SCHEMES = LIVE_SCHEMES | {"http", "https"}
 #: Seconds to wait for a network source or camera to connect, and for each read.
 DEFAULT_TIMEOUT = 10.0
+#: Most decoder threads (``--threads`` is bounded alike, :data:`fastdet.video.stages.MAX_THREADS`).
+MAX_DECODER_THREADS = 256
 
 
 def whole_frame_number(value, option):
@@ -55,9 +57,41 @@ def whole_frame_number(value, option):
     return int(value)
 
 
+def checked_source(source):
+    """``source`` as a path, URL or camera index, or a one-line error.
+
+    Raises
+    ------
+    TypeError
+        For anything that cannot name a video: ``None``, a float, a bool
+        (``True`` opened camera 1), bytes.
+    InputError
+        For an empty name (it read as the current folder, ".") or a negative
+        camera index (``/dev/video-1``).
+    """
+    if isinstance(source, numbers.Integral) and not isinstance(source, bool):
+        if source < 0:
+            raise InputError(f"a camera index is a whole number >= 0, got {source}")
+        return int(source)
+    if isinstance(source, os.PathLike):
+        text = os.fspath(source)
+    else:
+        text = source
+    if not isinstance(text, str):
+        bytes_hint = " (decode a bytes path with os.fsdecode)" if isinstance(text, bytes) else ""
+        raise TypeError(f"a video source is a path, a URL or a camera index, not "
+                        f"{type(source).__name__}{bytes_hint}")
+    if not text.strip():
+        raise InputError(f"the video source is an empty name ({text!r}): give a file, a URL "
+                         "or a camera")
+    return source
+
+
 def _source_kind(source):
     """``(what av.open gets, its format or None, kind)``; kind: file, network or camera."""
-    if isinstance(source, int) or (isinstance(source, str) and source.isdigit()):
+    # ASCII digits only: "٣".isdigit() too, and int() reads it as 3.
+    if isinstance(source, int) or (isinstance(source, str) and source.isascii()
+                                   and source.isdigit()):
         return f"/dev/video{int(source)}", "v4l2", "camera"
     text = os.fspath(source)
     if text.startswith("/dev/video"):
@@ -72,7 +106,7 @@ def source_file(source):
     """The file a video source reads (a path), or ``None`` for a camera or a network URL."""
     if isinstance(source, VideoSource):
         return source.path
-    url, _, kind = _source_kind(source)
+    url, _, kind = _source_kind(checked_source(source))
     return Path(url) if kind == "file" else None
 
 
@@ -169,8 +203,8 @@ class VideoSource:
     end : int, optional
         Index one past the last frame to yield; the stream's end by default.
     threads : int, optional
-        Decoder threads (FFmpeg's frame and slice threads); default: FFmpeg's
-        choice.
+        Decoder threads (FFmpeg's frame and slice threads), 1-256; default:
+        FFmpeg's choice.
     timeout : float or None
         Seconds to wait for a network source or camera to connect, and for
         each read after that (``None``: forever).
@@ -213,7 +247,12 @@ class VideoSource:
     ------
     InputError
         With a one-line message when the source cannot be opened, holds no
-        frames, sends nothing within ``timeout``, or ``start`` lies past its end.
+        frames, sends nothing within ``timeout``, or ``start`` lies past its
+        end; for an empty name, a negative camera index and an argument of
+        the wrong value (``threads=0``).
+    TypeError
+        For a source that cannot name a video (``None``, a float, bytes, a
+        bool).
 
     Notes
     -----
@@ -231,6 +270,7 @@ class VideoSource:
 
     def __init__(self, source, start=0, end=None, *, threads=None, timeout=DEFAULT_TIMEOUT,
                  strict=True):
+        source = checked_source(source)
         self.name = str(source)
         self.damage = InputDamage(self.name, strict)
         self.frames_read = 0
@@ -246,6 +286,12 @@ class VideoSource:
         if timeout is not None and not (isinstance(timeout, numbers.Real)
                                         and 0 < timeout < math.inf):
             raise InputError(f"--timeout must be a positive number of seconds, got {timeout!r}")
+        if threads is not None and (isinstance(threads, bool)
+                                    or not isinstance(threads, numbers.Integral)
+                                    or not 1 <= threads <= MAX_DECODER_THREADS):
+            # int() took "x" as a bare ValueError, truncated 1.5 and passed -1 to FFmpeg.
+            raise InputError(f"decoder threads must be a whole number 1-{MAX_DECODER_THREADS} "
+                             f"(None: FFmpeg's choice), got {threads!r}")
         url, fmt, self.kind = _source_kind(source)
         self.url = url
         self.path = Path(url) if self.kind == "file" else None

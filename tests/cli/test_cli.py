@@ -234,6 +234,22 @@ def test_eval_says_n_a_for_figures_without_a_denominator(capsys, data_dir, tmp_p
     assert (report["precision"], report["recall"], report["ap"]) == (0.0, None, None)
 
 
+@pytest.mark.parametrize("content, split, words", [
+    ({"images": {}}, None, "no annotated image or frame: nothing to evaluate"),
+    ({"images": {"test1.jpg": []}, "frames": {"held_out": []}}, "held_out",
+     "no annotated image or frame in split 'held_out': nothing to evaluate")])
+def test_eval_refuses_to_evaluate_nothing(capsys, data_dir, tmp_path, content, split, words):
+    """An empty "images" object, or a split that lists no image, printed all-n/a figures and
+    exited 0."""
+    annotations = tmp_path / "nothing.json"
+    annotations.write_text(json.dumps(content))
+    argv = ["eval", str(annotations), str(data_dir / "test_images"), "--threads", "1"]
+    assert main(argv + (["--split", split] if split else [])) == EXIT_ERROR
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.strip() == f"fastdet: error: {annotations}: {words}"
+
+
 def test_eval_missing_annotations(capsys, model_path, tmp_path):
     assert main(["eval", str(tmp_path / "a.json"), str(tmp_path), "--model", str(model_path)]) \
         == EXIT_ERROR

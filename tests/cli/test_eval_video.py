@@ -125,6 +125,40 @@ def test_annotations_without_ids_give_detection_figures_only(stub_pipeline, bloc
     assert report["recall"] == 1.0 and "tracking" not in report
 
 
+def test_ids_on_only_some_vehicles_are_refused(stub_pipeline, block_video, capsys, tmp_path):
+    """Vehicles with and without ids silently dropped MOTA, IDF1 and the rest."""
+    video, _ = block_video
+    _, truth = moving_block(FRAMES)
+    images = {f"frame{i}": [{"box": list(b), "id": 1}] for i, b in enumerate(truth)}
+    del images["frame7"][0]["id"], images["frame10"][0]["id"]
+    partial = tmp_path / "partial.json"
+    partial.write_text(json.dumps({"images": images,
+                                   "frames": {"late": [f"frame{i}" for i in range(6, FRAMES)]}}))
+    expect_error(capsys, [partial, video],
+                 f"{partial}: 10 of 12 vehicles that are not difficult have an \"id\" and "
+                 f"images['frame7'][0] has none")
+    expect_error(capsys, [partial, video, "--split", "late"],
+                 "4 of 6 vehicles of split 'late' that are not difficult have an \"id\" and "
+                 "images['frame7'][0] has none")
+    # Ids only on difficult vehicles: as much a mistake.
+    for name, objects in images.items():
+        objects[0].pop("id", None)
+        objects.append({"box": [0, 0, 10, 10], "difficult": True, "id": 2})
+    partial.write_text(json.dumps({"images": images}))
+    expect_error(capsys, [partial, video], "0 of 12 vehicles that are not difficult")
+
+
+def test_difficult_vehicles_may_go_without_an_id(stub_pipeline, block_video, capsys, tmp_path):
+    video, _ = block_video
+    _, truth = moving_block(FRAMES)
+    images = {f"frame{i}": [{"box": list(b), "id": 1}, {"box": [0, 0, 10, 10], "difficult": True}]
+              for i, b in enumerate(truth)}
+    annotations = tmp_path / "difficult.json"
+    annotations.write_text(json.dumps({"images": images}))
+    tracking = run_json(capsys, annotations, video)["tracking"]
+    assert (tracking["mota"], tracking["vehicles"], tracking["objects"]) == (1.0, 1, FRAMES)
+
+
 def test_the_bundled_model_tracks_both_cars_of_the_test_video(capsys, data_dir):
     """The real pipeline on the real clip: the two near cars, no switch, nothing else."""
     from pathlib import Path

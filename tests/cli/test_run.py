@@ -254,6 +254,35 @@ def test_error_unwritable_output(fastdet, stub_pipeline, block_video, tmp_path, 
                  capsys, "is a directory", tmp_path)
 
 
+def test_a_webm_out_without_a_codec_is_vp9_and_plays(fastdet, stub_pipeline, block_video,
+                                                     tmp_path, capsys):
+    """``--out a.webm`` failed at once: "'webm' format does not support 'libx264' codec"."""
+    out = tmp_path / "a.webm"
+    assert fastdet(["run", str(block_video), "--out", str(out), "--quiet"]) == 0
+    assert leftovers(tmp_path) == []
+    with av.open(str(out)) as container:
+        stream = container.streams.video[0]
+        assert stream.codec_context.name == "vp9"
+        sizes = [(f.width, f.height) for f in container.decode(stream)]
+    assert sizes == [(200, 120)] * 12
+    # A codec WebM cannot hold, given explicitly: refused before any output, saying what would do.
+    expect_error(fastdet, ["run", str(block_video), "--out", str(tmp_path / "b.webm"),
+                           "--codec", "mp4v"], capsys,
+                 "the WebM format cannot hold mp4v (use --codec vp9 or av1, or write .mp4 or "
+                 ".mkv)", tmp_path)
+    expect_error(fastdet, ["run", str(block_video), "--out", str(tmp_path / "b.avi"),
+                           "--codec", "hevc"], capsys,
+                 "the AVI format cannot hold hevc (use --codec h264, mp4v, av1 or vp9", tmp_path)
+
+
+def test_an_out_named_only_by_its_suffix_is_named_as_such(fastdet, stub_pipeline, block_video,
+                                                          tmp_path, capsys):
+    """``--out .mp4`` said "unsupported suffix"."""
+    expect_error(fastdet, ["run", str(block_video), "--out", str(tmp_path / ".mp4")], capsys,
+                 ".mp4 is a hidden file's name with no suffix (its dot starts the name); name "
+                 "the video, e.g. video.mp4", tmp_path)
+
+
 def test_error_start_past_the_end(fastdet, stub_pipeline, block_video, tmp_path, capsys):
     expect_error(fastdet, ["run", str(block_video), "--start", "12", "--out",
                            str(tmp_path / "o.mp4")], capsys, "--start 12 is past the end",

@@ -253,9 +253,15 @@ def test_rejects_frames_of_another_size(tmp_path):
         sink.write(numbered_frame(0))
 
 
-@pytest.mark.parametrize("name, message", [("missing/out.mp4", "cannot write .*out.mp4"),
-                                           ("", "it is a directory"),
-                                           ("out.xyz", "unsupported suffix")])
+@pytest.mark.parametrize("name, message", [
+    ("missing/out.mp4", "cannot write .*out.mp4"),
+    ("", "it is a directory"),
+    ("out.xyz", "unsupported suffix"),
+    ("out", "the name has no suffix; use one of .mp4"),
+    # A file named just ".mp4" said "unsupported suffix".
+    (".mp4", "\\.mp4 is a hidden file's name with no suffix \\(its dot starts the name\\); "
+             "name the video, e.g. video\\.mp4$"),
+    (".MKV", "e.g. video\\.MKV$")])
 def test_unwritable_destination(tmp_path, name, message):
     with pytest.raises(InputError, match=message):
         VideoSink(tmp_path / name, 25.0, SIZE)
@@ -276,13 +282,82 @@ def test_a_frame_of_another_dtype_or_after_closing_is_named_as_such(tmp_path):
         assert [frame_number(frame[:SIZE[1], :SIZE[0]]) for frame in video] == [0]
 
 
-@pytest.mark.parametrize("codec", ["vp9", "av1"])
-def test_a_container_that_cannot_hold_the_codec_is_refused_at_opening(tmp_path, codec):
+@pytest.mark.parametrize("name, codec, message", [
+    ("out.mov", "vp9", "the QuickTime \\(.mov\\) format cannot hold vp9 \\(use --codec h264, "
+                       "hevc or mp4v, or write .mp4 or .mkv\\)"),
+    ("out.mov", "av1", "the QuickTime \\(.mov\\) format cannot hold av1"),
+    ("out.avi", "hevc", "the AVI format cannot hold hevc \\(use --codec h264, mp4v, av1 or vp9, "
+                        "or write .mp4 or .mkv\\)"),
+    ("out.webm", "mp4v", "the WebM format cannot hold mp4v \\(use --codec vp9 or av1, or write "
+                         ".mp4 or .mkv\\)"),
+    ("out.webm", "h264", "the WebM format cannot hold h264 \\(use --codec vp9 or av1"),
+    ("out.ts", "vp9", "the MPEG-TS \\(.ts\\) format cannot hold vp9 \\(use --codec h264, hevc "
+                      "or mp4v"),
+    ("out.ts", "av1", "the MPEG-TS \\(.ts\\) format cannot hold av1")])
+def test_a_container_that_cannot_hold_the_codec_is_refused_at_opening(tmp_path, name, codec,
+                                                                      message):
     """AV1 or VP9 in .mov: refused at the first packet only, as "Invalid argument" (after a
-    whole run's work, from ``fastdet run``); now when the sink opens, saying what to use."""
-    with pytest.raises(InputError, match=f"a mov file cannot hold {codec} \\(use .mp4 or .mkv"):
-        VideoSink(tmp_path / "out.mov", 12, (64, 64), codec=codec)
+    whole run's work, from ``fastdet run``); HEVC in .avi and mp4v or H.264 in .webm said
+    "'avi' format does not support 'libx265' codec" without a way out; AV1 and VP9 in .ts
+    were written as a data stream that no player shows.  Now when the sink opens, saying what
+    to use."""
+    with pytest.raises(InputError, match=f"^cannot write {tmp_path / name}: {message}"):
+        VideoSink(tmp_path / name, 12, (64, 64), codec=codec)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", ["out.webm", "OUT.WEBM"])
+def test_a_webm_without_a_codec_is_vp9_written_atomically(tmp_path, name):
+    """WebM holds only VP9 and AV1: without a codec the sink chose H.264 and failed at once
+    ("'webm' format does not support 'libx264' codec")."""
+    path = tmp_path / name
+    size = (128, 96)
+    with VideoSink(path, 25.0, size) as sink:
+        assert sink.codec == "vp9"
+        for i in range(6):
+            sink.write(numbered_frame(i, size))
+        assert not path.exists() and len(leftovers(tmp_path)) == 1
+    assert leftovers(tmp_path) == []
+    with av.open(str(path)) as container:
+        assert container.format.name.split(",")[0] in ("matroska", "webm")
+        stream = container.streams.video[0]
+        assert stream.codec_context.name == "vp9"
+        frames = [f.to_ndarray(format="bgr24") for f in container.decode(stream)]
+    assert [frame_number(f[:size[1], :size[0]]) for f in frames] == list(range(6))
+
+
+def test_every_other_container_keeps_h264_by_default(tmp_path):
+    for name in ("out.mp4", "out.m4v", "out.mov", "out.mkv", "out.avi", "out.ts"):
+        with VideoSink(tmp_path / name, 25.0, SIZE) as sink:
+            assert sink.codec == "h264"
+            sink.write(numbered_frame(0))
+        assert read_back(tmp_path / name)[:3] == ("h264", "yuv420p", SIZE)
+
+
+def test_a_webm_without_vp9_suggests_a_codec(tmp_path, monkeypatch):
+    import fastdet.video.sink as sink_module
+
+    monkeypatch.setattr(sink_module.av, "codecs_available",
+                        set(av.codecs_available) - {"libvpx-vp9"})
+    with pytest.raises(InputError, match="^cannot write .*out.webm: a WebM video is vp9 unless "
+                                         "--codec says otherwise, and this FFmpeg cannot encode "
+                                         "vp9 \\(libvpx-vp9 is missing\\): give --codec av1, or "
+                                         "write .mp4 or .mkv$"):
+        VideoSink(tmp_path / "out.webm", 25.0, SIZE)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("colour", [5, "x", (1,), (1, 1, 1), (1, True), (-1, 1), (1.5, 1)])
+def test_colour_tags_that_are_no_pair_of_numbers_are_refused(tmp_path, colour):
+    """colour=5 raised a bare TypeError ('int' object is not subscriptable); "x" and (1,)
+    were taken."""
+    with pytest.raises(InputError, match="^colour is the \\(matrix, range\\) pair of FFmpeg's "
+                                         "colour tags, as VideoSource.colour gives it, got "):
+        VideoSink(tmp_path / "out.mp4", 25.0, SIZE, colour=colour)
+    assert list(tmp_path.iterdir()) == []
+    with VideoSink(tmp_path / "out.mp4", 25.0, SIZE, colour=(np.int64(1), 1)) as sink:
+        assert sink.bt709
+        sink.write(numbered_frame(0))
 
 
 @pytest.mark.parametrize("time_base", [0, -1, "x", True])

@@ -285,6 +285,36 @@ def test_frame_numbers_must_be_whole(clip, start, end):
         VideoSource(clip, start, end)
 
 
+@pytest.mark.parametrize("source, kind", [(None, "NoneType"), (1.5, "float"), (True, "bool"),
+                                          (b"clip.mp4", "bytes")])
+def test_a_source_of_a_type_that_names_no_video_is_a_type_error(source, kind):
+    """None and 1.5 said "expected str, bytes or os.PathLike object", bytes "startswith first
+    arg must be bytes", True opened camera 1."""
+    with pytest.raises(TypeError, match=f"^a video source is a path, a URL or a camera index, "
+                                         f"not {kind}"):
+        VideoSource(source)
+
+
+@pytest.mark.parametrize("source, message", [
+    ("", r"the video source is an empty name \(''\): give a file, a URL or a camera"),
+    (-1, "a camera index is a whole number >= 0, got -1"),
+    ("\u0663", "video not found: \u0663")])      # an Arabic 3 is no camera index
+def test_an_empty_name_or_a_negative_camera_is_named_as_such(source, message):
+    """"" said "not a video file: .", -1 "no camera at /dev/video-1"."""
+    with pytest.raises(InputError, match=f"^{message}$"):
+        VideoSource(source)
+
+
+@pytest.mark.parametrize("threads", ["x", -1, 0, 1.5, True, 257])
+def test_decoder_threads_must_be_a_count(clip, threads):
+    """"x" raised a bare ValueError from int(); -1, 0, 1.5 and True were accepted."""
+    with pytest.raises(InputError, match=f"decoder threads must be a whole number 1-256 "
+                                         f"\\(None: FFmpeg's choice\\), got {threads!r}"):
+        VideoSource(clip, threads=threads)
+    with VideoSource(clip, threads=np.int64(2)) as video:
+        assert len(list(video)) == 10
+
+
 def test_closing_a_source_while_reading_it_says_so(clip):
     """It blamed the file: "the input ends after frame 0 of 10 frames (truncated or damaged)"."""
     video = VideoSource(clip, start=np.int64(0))
