@@ -96,7 +96,8 @@ def read_image(path):
     ------
     InputError
         When the file is missing, a folder, empty, not an image OpenCV can
-        decode, or damaged (cut short, corrupt data).
+        decode (its header claiming more pixels than OpenCV decodes
+        included), or damaged (cut short, corrupt data).
     """
     path = Path(path)
     if path.is_dir():
@@ -109,7 +110,15 @@ def read_image(path):
         raise InputError(f"cannot read {path}: {exc.strerror or exc}") from None
     if not data:
         raise InputError(f"cannot read {path} as an image: the file is empty")
-    image, complaints = _decode(data)
+    try:
+        image, complaints = _decode(data)
+    except cv2.error as exc:
+        # OpenCV asserts, rather than returning None, on a header that claims more
+        # pixels than it decodes (CV_IO_MAX_IMAGE_PIXELS, 2**30): a 40000x40000 PNG
+        # of a few bytes was an internal error of every verb that reads images.
+        reason = ("more pixels than OpenCV decodes" if "CV_IO_MAX_IMAGE_PIXELS" in str(exc)
+                  else " ".join(str(exc).split())[-120:])
+        raise InputError(f"cannot read {path} as an image ({reason})") from None
     damage = [line for line in complaints if any(word in line for word in _DAMAGE)]
     if image is None:
         detail = f" ({damage[0]})" if damage else ""
