@@ -171,7 +171,7 @@ def annotated_sources(sources, annotation_paths, split=None):
     loaded = []
     for path in annotation_paths:
         annotations, splits = load_annotations(path), load_splits(path)
-        loaded.append(select_split(annotations, splits, split) if split and splits
+        loaded.append(select_split(annotations, splits, split, path) if split and splits
                       else annotations)
     if len(loaded) == 1:
         loaded = loaded * len(sources)

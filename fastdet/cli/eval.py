@@ -55,7 +55,7 @@ def cmd_eval(args):
     if not 0 < args.iou <= 1:            # before any work; NaN too
         raise InputError(f"--iou must be in (0, 1], got {args.iou}")
     annotations = select_split(load_annotations(args.annotations), load_splits(args.annotations),
-                               args.split)
+                               args.split, args.annotations)
     if not annotations:
         # Every figure would be n/a, exit 0: an empty file or split is a mistake.
         chosen = "" if args.split is None else f" in split {args.split!r}"

@@ -117,8 +117,10 @@ def frame_number(name):
     return int(digits) if digits.isascii() and digits.isdigit() else None
 
 
-def select_split(annotations, splits, name):
+def select_split(annotations, splits, name, path=None):
     """The annotations of one split's images (all of them for ``name=None``).
+
+    ``path``, the annotation file, is named in the error.
 
     Raises
     ------
@@ -129,7 +131,8 @@ def select_split(annotations, splits, name):
         return annotations
     if name not in splits:
         known = ", ".join(sorted(splits)) or "none"
-        raise InputError(f"no split {name!r} in the annotations (splits: {known})")
+        where = "the annotations" if path is None else str(path)
+        raise InputError(f"no split {name!r} in {where} (splits: {known})")
     return {image: annotations[image] for image in splits[name]}
 
 

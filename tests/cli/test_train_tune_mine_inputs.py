@@ -361,3 +361,18 @@ def test_detect_refuses_a_drawing_name_opencv_cannot_write_before_any_work(capsy
     assert "no writer for 'a name without a suffix'" in captured.err
     # Without --out-dir nothing is written, and the image is read by its content.
     assert main(["detect", str(tmp_path / "frame"), "--model", str(generous_model)]) == 0
+
+
+@pytest.mark.parametrize("verb", ["mine", "tune"])
+def test_a_split_the_file_does_not_name_is_refused_naming_the_file(tmp_path, capsys, verb):
+    """The message named no file: with one annotation file a source, which one lacked it?"""
+    annotations = annotated_blocks(tmp_path)
+    data = json.loads(annotations.read_text())
+    data["frames"] = {"development": ["a.png"]}
+    annotations.write_text(json.dumps(data))
+    out = tmp_path / ("crops" if verb == "mine" else "tuned.toml")
+    assert main([verb, str(tmp_path / "a.png"), "--annotations", str(annotations),
+                 "--split", "held_out", "--out", str(out)]) == EXIT_ERROR
+    assert one_line_error(capsys) == (f"fastdet: error: no split 'held_out' in {annotations} "
+                                      f"(splits: development)")
+    assert not out.exists()
