@@ -12,6 +12,7 @@ import pytest
 
 from fastdet.errors import InputError
 from fastdet.files.images import GREY_ONLY_SUFFIXES, read_image, write_image
+from image_files import png_claiming
 
 
 @pytest.fixture
@@ -62,24 +63,10 @@ def test_an_encoders_complaint_becomes_the_errors_reason(tmp_path, capfd):
     assert list(tmp_path.iterdir()) == []
 
 
-def _png_claiming(width, height):
-    """A PNG of a few bytes whose header claims ``width`` x ``height`` RGB pixels."""
-    import struct
-    import zlib
-
-    def chunk(kind, data):
-        return (struct.pack(">I", len(data)) + kind + data
-                + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF))
-
-    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header)
-            + chunk(b"IDAT", zlib.compress(b"\0" * 10)) + chunk(b"IEND", b""))
-
-
 def test_an_image_claiming_more_pixels_than_opencv_decodes_is_refused(tmp_path):
     """OpenCV asserts on it (cv2.error): every verb that reads images ended in an internal error."""
     path = tmp_path / "huge.png"
-    path.write_bytes(_png_claiming(40000, 40000))
+    path.write_bytes(png_claiming(40000, 40000))
     with pytest.raises(InputError, match=r"^cannot read .*huge\.png as an image \(more pixels "
                                          r"than OpenCV decodes\)$"):
         read_image(path)
@@ -87,7 +74,7 @@ def test_an_image_claiming_more_pixels_than_opencv_decodes_is_refused(tmp_path):
 
 def test_detect_refuses_such_an_image_in_one_line(tmp_path):
     path = tmp_path / "huge.png"
-    path.write_bytes(_png_claiming(40000, 40000))
+    path.write_bytes(png_claiming(40000, 40000))
     result = subprocess.run([sys.executable, "-m", "fastdet.cli", "detect", str(path)],
                             capture_output=True, text=True, timeout=300)
     assert result.returncode == 2, result.stderr

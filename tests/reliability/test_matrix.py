@@ -40,6 +40,7 @@ from matrix_video_rows import VIDEO_ROWS, VideoInputs
 from fastdet.cli.app import main
 from fastdet.detector.model import load_model
 from filesystems import private_device
+from image_files import png_claiming
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -65,6 +66,7 @@ class Inputs(InputFolder):
         cv2.imwrite(str(folder / "deep.png"), image.astype(np.uint16) * 257)
         cv2.imwrite(str(folder / "tiny.png"), image[:10, :10])
         cv2.imwrite(str(folder / "huge.jpg"), cv2.resize(image, (7680, 4320)))
+        self.file("claims_huge.png", png_claiming(40000, 40000))
         # Models.
         bundled = (ROOT / "fastdet" / "data" / "default_model.npz").read_bytes()
         self.file("empty.npz", b"")
@@ -198,6 +200,13 @@ ROWS = [
         code=0),
     Row("detect", "8K image", lambda i, o: ["detect", s(i / "huge.jpg")], code=0,
         check=lambda i, o, out: boxes_of(out)),
+    Row("detect", "image whose header claims 40000x40000 pixels",
+        lambda i, o: ["detect", s(i / "claims_huge.png")],
+        names=lambda i, o: i / "claims_huge.png", problem="more pixels than OpenCV decodes"),
+    Row("detect", "a missing image after good ones (refused before any is searched)",
+        lambda i, o: ["detect", s(i.image), s(i / "missing.jpg"), "--out-dir", s(o / "d")],
+        names=lambda i, o: i / "missing.jpg", problem="not found",
+        guarded=lambda i, o: [o / "d"]),
     *bad_file_rows("detect", "model",
                    lambda p, i, o: ["detect", s(i.image), "--model", s(p)]),
     Row("detect", "model tampered with",
@@ -272,6 +281,15 @@ ROWS = [
             '{"images": {"frame0": [{"box": [0, 0, 9, 9], "id": 1},'
             ' {"box": [20, 0, 29, 9], "id": 1}]}}'), ["eval", s(o / "ids.json"), s(i.dir)])[1],
         names=lambda i, o: o / "ids.json", problem="an id names one vehicle a frame"),
+    Row("eval", "annotations that name no image",
+        lambda i, o: ((o / "none.json").write_text('{"images": {}}'),
+                      ["eval", s(o / "none.json"), s(i.dir)])[1],
+        names=lambda i, o: o / "none.json", problem="nothing to evaluate"),
+    Row("eval", "a JSON key given twice",
+        lambda i, o: ((o / "twice.json").write_text(
+            '{"images": {"image.jpg": [], "image.jpg": []}}'),
+            ["eval", s(o / "twice.json"), s(i.dir)])[1],
+        names=lambda i, o: o / "twice.json", problem="given twice"),
     Row("eval", "annotated image", lambda i, o: ["eval", s(i.annotations), s(i.dir)], code=0),
     # ---- train --------------------------------------------------------------------
     Row("train", "data folder missing",
