@@ -167,7 +167,9 @@ def cache_base():
     from platformdirs import user_cache_dir
 
     base = os.environ.get(CACHE_ENV_VAR) or user_cache_dir("fastdet", appauthor=False)
-    return Path(base) / "kernels"
+    # Absolute: NUMBA_CACHE_DIR is exported from it, and a child process started in
+    # another folder (the compile helper, a benchmark's peer) read a relative one there.
+    return Path(os.path.abspath(base)) / "kernels"
 
 
 def _writable(folder):

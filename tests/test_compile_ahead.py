@@ -231,3 +231,13 @@ def test_no_early_helper_without_a_second_process(monkeypatch):
     assert compile_ahead.start_early() == []
     assert len(folders) == 1 and not os.path.exists(folders[0])
     assert compile_ahead.take_early(DETECTION_FAMILIES) is None
+
+
+def test_a_relative_cache_folder_is_made_absolute(tmp_path, monkeypatch):
+    """NUMBA_CACHE_DIR is exported from it: a child started in another folder read it there."""
+    from fastdet.compile_ahead import CACHE_ENV_VAR, cache_base
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv(CACHE_ENV_VAR, "relative/cache")
+    assert cache_base() == tmp_path / "relative" / "cache" / "kernels"
+    assert cache_base().is_absolute()

@@ -27,12 +27,13 @@ def cmd_warmup(args):
     """Warm the families and print what each cost; returns the exit code."""
     from ..errors import InputError
     from ..files.bytecode import compile_package
-    from ..kernels.cache import kernel_cache_dir
+    from ..kernels.cache import describe
     from ..kernels.warmup import FAMILIES, compiled_here, warm
 
     if args.processes is not None and args.processes < 1:
         raise InputError(f"--processes must be at least 1, got {args.processes}")
-    names = args.families or list(FAMILIES)
+    # Each family once, in the order given: its table row is printed once.
+    names = list(dict.fromkeys(args.families or FAMILIES))
     bytecode = compile_package()
     if bytecode["compiled"]:
         done = "" if bytecode["ok"] else " (some could not be written: a read-only installation)"
@@ -40,7 +41,9 @@ def cmd_warmup(args):
               f"{bytecode['seconds']:.2f} s{done}")
     else:
         print("python modules: already byte-compiled")
-    print(f"kernel cache: {kernel_cache_dir()}")
+    # Where the kernels go, and that they are not kept when the configured
+    # folder cannot be written (a warm-up whose work is then lost at exit).
+    print(describe())
     start = time.perf_counter()
     seconds = warm(names, processes=args.processes)
     total = time.perf_counter() - start

@@ -21,7 +21,9 @@ A cache never stops fastdet (what :func:`configure` arranges):
   starts as a copy of what the folder holds: a read-only cache filled
   beforehand (say, in a container image) still serves its kernels, and
   kernels it lacks are compiled and not kept.  Numba would otherwise fall
-  back to ``__pycache__`` beside the sources, inside the installed package;
+  back to ``__pycache__`` beside the sources, inside the installed package
+  (which fastdet's kernels never use: with no temporary folder either, or
+  a kernel subfolder Numba cannot use, they are compiled and not cached);
 * an entry that cannot be loaded (files cut short by a full disk or a
   killed process, garbage) is dropped and its kernel compiled again; an
   entry that cannot be saved is not kept;
@@ -50,6 +52,7 @@ from pathlib import Path
 import llvmlite.binding as llvm
 import numba
 from numba.core import caching
+from numba.core.caching import NullCache
 from numba.core.dispatcher import Dispatcher
 
 from ..compile_ahead import CACHE_KEY_PREFIX, cache_base
@@ -90,11 +93,27 @@ def kernel_cache_dir():
     return cache_base() / cache_key()
 
 
+def _kernel_subfolder():
+    """The subfolder of the cache folder Numba files this fastdet's kernels in (named
+    after their source folder, as Numba's ``UserProvidedCacheLocator`` names it)."""
+    return caching._CacheLocator.get_suitable_cache_subpath(__file__)
+
+
 def _unusable(path):
-    """Why fastdet cannot create files in ``path`` (``None`` when it can), as Numba checks it."""
+    """Why fastdet cannot create files in ``path`` (``None`` when it can), as Numba checks it.
+
+    Checked in the kernels' own subfolder too: when only that one cannot be
+    made or written (a file or another user's folder under its name), Numba
+    would file every kernel in ``__pycache__`` inside the installed package.
+    A subfolder not there yet is left for Numba to make (an empty one would
+    count as cached for :func:`fastdet.compile_ahead.nothing_cached`).
+    """
     try:
         path.mkdir(parents=True, exist_ok=True)
         tempfile.TemporaryFile(dir=path).close()
+        subfolder = path / _kernel_subfolder()
+        if os.path.lexists(subfolder):
+            tempfile.TemporaryFile(dir=subfolder).close()
     except OSError as exc:
         return exc.strerror or str(exc)
     return None
@@ -125,18 +144,28 @@ def configure():
     Returns
     -------
     Path
-        The folder kernels are cached in for this process.
+        The folder kernels are cached in for this process (the configured
+        one, unused, when neither it nor a temporary folder can be written:
+        the kernels are then not cached).
     """
     configured = kernel_cache_dir()
     path, problem = configured, _unusable(configured)
     if problem is not None:
-        path = _process_folder()
-        _copy_entries(configured, path)
+        try:
+            path = _process_folder()
+        except OSError:
+            # No temporary folder either (a read-only container without
+            # /tmp): the kernels compile every run, uncached (see
+            # _cache_only_in_the_cache_folder), rather than fastdet stopping.
+            path = None
+        else:
+            _copy_entries(configured, path)
     _status.update(folder=path, problem=problem, configured=configured)
-    os.environ["NUMBA_CACHE_DIR"] = str(path)
-    numba.config.CACHE_DIR = str(path)
+    os.environ["NUMBA_CACHE_DIR"] = str(path or configured)
+    numba.config.CACHE_DIR = str(path or configured)
     _tolerate_damaged_entries()
-    return path
+    _cache_only_in_the_cache_folder()
+    return path or configured
 
 
 def _copy_entries(source, target):
@@ -159,6 +188,9 @@ def active_cache_dir():
 
 def describe():
     """One line: where kernels are cached, and why not where configured if so."""
+    if _status["problem"] is not None and _status["folder"] is None:
+        return (f"kernel cache {_status['configured']} is not writable ({_status['problem']}) "
+                "and there is no temporary folder: kernels are compiled every run, not cached")
     if _status["problem"] is not None:
         return (f"kernel cache {_status['configured']} is not writable ({_status['problem']}): "
                 f"using a copy of it in {_status['folder']}, kept for this run only")
@@ -167,6 +199,40 @@ def describe():
 
 def _is_fastdet_kernel(cache):
     return getattr(getattr(cache, "_py_func", None), "__module__", "").startswith("fastdet.")
+
+
+def _cache_only_in_the_cache_folder():
+    """Leave a fastdet kernel uncached rather than cached anywhere but the cache folder.
+
+    When Numba cannot use ``NUMBA_CACHE_DIR`` for a function it tries the
+    next place on its list, ``__pycache__`` beside the source, that is
+    inside the installed package, and raises ``RuntimeError`` from the
+    decorator (at import) when it finds no place at all.  For fastdet's
+    kernels either now means no cache: the kernel compiles at its first
+    call in every run.  Other packages' functions are untouched.
+    """
+    if getattr(Dispatcher, "_fastdet_cache_guard", False):
+        return
+    enable = Dispatcher.enable_caching
+
+    def enable_caching(self):
+        if not getattr(self.py_func, "__module__", "").startswith("fastdet."):
+            return enable(self)
+        try:
+            enable(self)
+            locator = self._cache._impl.locator
+        except RuntimeError:
+            locator = None
+        if not isinstance(locator, caching.UserProvidedCacheLocator):
+            if not _status.get("uncached"):
+                log.info("kernel cache %s cannot be used: kernels are compiled, not cached",
+                         numba.config.CACHE_DIR)
+            _status["uncached"] = True
+            self._cache = NullCache()
+        return None
+
+    Dispatcher.enable_caching = enable_caching
+    Dispatcher._fastdet_cache_guard = True
 
 
 def _tolerate_damaged_entries():

@@ -270,7 +270,7 @@ def warm(names=DETECTION_FAMILIES, processes=None, claims=None):
     Parameters
     ----------
     names : sequence of str
-        Keys of :data:`FAMILIES`.
+        Keys of :data:`FAMILIES`; one given twice is warmed once.
     processes : int, optional
         With 2 or more and families still uncompiled (:func:`cold_families`),
         a second Python process shares the compile: both take the families
@@ -294,6 +294,9 @@ def warm(names=DETECTION_FAMILIES, processes=None, claims=None):
     unknown = [name for name in names if name not in FAMILIES]
     if unknown:
         raise ValueError(f"unknown kernel families {unknown}; known: {sorted(FAMILIES)}")
+    # A family named twice (``fastdet warmup --families label label``) would
+    # otherwise count as two cold families and start a helper process for one.
+    names = list(dict.fromkeys(names))
     if claims is not None:
         return {name: _run(name) for name in compile_order(names) if claims.claim(name)}
     if processes is None:

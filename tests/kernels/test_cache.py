@@ -266,3 +266,47 @@ def test_cached_load_takes_numbas_path_for_unchecked_versions(monkeypatch):
     monkeypatch.setattr(cached_load.numba, "__version__", "not-a-version")
     assert not cached_load.supported(numba_cache)
 
+
+
+def _in_fresh_process(code, **env):
+    """Run ``code`` in a new interpreter from the checkout; the completed process."""
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                          env=dict(os.environ, **env), timeout=300)
+
+
+def test_a_blocked_kernel_subfolder_never_sends_kernels_into_the_package(tmp_path):
+    """The cache folder is writable but fastdet's kernel subfolder in it cannot be made
+    (a file under its name): Numba then filed every kernel in ``__pycache__`` inside
+    the package.  Now the folder counts as unwritable and a temporary copy is used."""
+    (tmp_path / _CacheLocator.get_suitable_cache_subpath(cache.__file__)).write_text("a file")
+    result = _in_fresh_process(
+        "from fastdet.kernels import cache, convert\n"
+        "print(cache.describe())\n"
+        "print(convert._bgr_to_hls._cache._cache_path)\n", NUMBA_CACHE_DIR=str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    described, kernels_in = result.stdout.splitlines()[-2:]
+    assert "is not writable" in described, described
+    assert not Path(kernels_in).is_relative_to(PACKAGE), kernels_in
+
+
+def test_no_temporary_folder_and_an_unwritable_cache_compiles_uncached(tmp_path):
+    """An unwritable cache folder and no temporary folder to copy it to (a read-only
+    container without /tmp): importing the kernels raised FileNotFoundError.  Now they
+    compile uncached, and work."""
+    blocked = tmp_path / "a-file"
+    blocked.write_text("not a folder")
+    result = _in_fresh_process(
+        "import tempfile\n"
+        "def none(*args, **kwargs):\n"
+        "    raise FileNotFoundError(2, 'No usable temporary directory found')\n"
+        "tempfile.mkdtemp = none\n"
+        "import numpy as np\n"
+        "from fastdet.kernels import cache, convert\n"
+        "print(type(convert._bgr_to_hls._cache).__name__)\n"
+        "print(convert.bgr_to_hls(np.zeros((4, 16, 3), np.uint8)).shape)\n"
+        "print(cache.describe())\n", NUMBA_CACHE_DIR=str(blocked))
+    assert result.returncode == 0, result.stderr
+    kind, shape, described = result.stdout.splitlines()[-3:]
+    assert kind == "NullCache" and shape == "(4, 16, 3)", result.stdout
+    assert "not cached" in described, described
+    assert not list(tmp_path.rglob("*.nb[ic]"))

@@ -250,3 +250,42 @@ def test_without_a_second_process_this_one_compiles_everything(monkeypatch):
     monkeypatch.setattr(warmup, "FamilyClaims", no_folder)
     seconds = warmup.warm(["heat", "label"], processes=2)
     assert calls == ["label", "heat"] and "helper" not in seconds
+
+
+def test_a_family_named_twice_is_warmed_once(monkeypatch):
+    """``warm(["heat", "heat"])`` counted two cold families and started a helper
+    process for the one family; now it is one family, compiled here."""
+    calls, helpers = [], []
+    monkeypatch.setattr(warmup, "FAMILIES", {"heat": lambda: calls.append("heat")})
+    monkeypatch.setattr(warmup, "cold_families", lambda names: list(names))
+    monkeypatch.setattr(warmup, "take_early", lambda names: None)
+
+    def no_process(names, claims):
+        helpers.append(names)
+        raise OSError("no processes left")
+
+    monkeypatch.setattr(warmup, "start_helper", no_process)
+    seconds = warmup.warm(["heat", "heat"], processes=2)
+    assert calls == ["heat"] and helpers == [] and list(seconds) == ["heat"]
+
+
+def test_warmup_command_lists_a_family_named_twice_once(capsys):
+    assert main(["warmup", "--families", "heat", "heat", "--processes", "1"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("| heat |") == 1 and "1 families ready" in out
+
+
+def test_warmup_says_its_kernels_are_not_kept_in_an_unwritable_cache(tmp_path):
+    """``fastdet warmup`` (building an image) with a cache folder it cannot write
+    printed only the temporary folder's name, as if the kernels were kept."""
+    blocked = tmp_path / "a-file"
+    blocked.write_text("not a folder")
+    environment = dict(os.environ, FASTDET_CACHE_DIR=str(blocked))
+    environment.pop("NUMBA_CACHE_DIR", None)
+    result = subprocess.run(
+        [sys.executable, "-m", "fastdet.cli", "warmup", "--families", "convert", "--processes",
+         "1"], capture_output=True, text=True, env=environment, timeout=300,
+        cwd=os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+    assert result.returncode == 0, result.stderr
+    assert "is not writable" in result.stdout and "kept for this run only" in result.stdout, \
+        result.stdout
