@@ -9,6 +9,7 @@ its path inside that folder, and a listed video the path as the list writes it
 from __future__ import annotations
 
 import os
+import re
 import stat
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
@@ -20,6 +21,8 @@ VIDEO_SUFFIXES = frozenset({".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".m
                             ".ts", ".mts", ".m2ts", ".wmv", ".flv", ".3gp"})
 #: Bytes read to tell a list of paths from a binary file (a video with another suffix).
 _TEXT_PROBE = 8192
+#: Bytes no list of paths holds but binary files do (controls other than tab, CR, LF, FF, VT).
+_BINARY = re.compile(rb"[\x00-\x08\x0e-\x1f\x7f]")
 
 
 @dataclass(frozen=True)
@@ -106,17 +109,18 @@ def find_videos(inputs, exclude=None):
 
 
 def _expand(path, exclude, listed_by):
-    where = f" (listed in {listed_by})" if listed_by else ""
+    # display_name: a listed name that is not UTF-8 shows its bytes as \xff, not \udcff.
+    where = f" (listed in {display_name(str(listed_by))})" if listed_by else ""
     if not path.exists():
-        raise InputError(f"input not found: {path}{where}")
+        raise InputError(f"input not found: {display_name(str(path))}{where}")
     resolved = path.resolve()
     if path.is_dir():
         return [VideoInput(file, file.relative_to(resolved).as_posix())
                 for file in _videos_in(resolved, exclude)]
     if not _regular_or_dangling(path):
         # Hashing a FIFO for the manifest would wait for a writer for good.
-        raise InputError(f"{path}{where} is not a regular file (a FIFO, socket or device): "
-                         "a batch reads video files")
+        raise InputError(f"{display_name(str(path))}{where} is not a regular file (a FIFO, "
+                         "socket or device): a batch reads video files")
     if is_video_name(path) or listed_by is not None:
         # A listed file is taken for a video whatever its suffix: the list says so.
         return [VideoInput(resolved, path.name)]
@@ -156,16 +160,18 @@ def _regular_or_dangling(path):
 def _read_list(path, exclude):
     with open(path, "rb") as handle:
         head = handle.read(_TEXT_PROBE)
-    try:
-        if b"\0" in head:
-            raise UnicodeDecodeError("utf-8", head, 0, 1, "binary")
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
+    if _BINARY.search(head):
         raise InputError(f"{path} is neither a video (by its suffix: "
                          f"{', '.join(sorted(VIDEO_SUFFIXES))}) nor a text file listing "
-                         "videos") from None
+                         "videos")
+    # Each line is a file name, decoded as the file system decodes names: a name that is
+    # not UTF-8 (`find > list.txt` in a folder holding one) keeps its bytes, as a video
+    # named directly does; strict UTF-8 refused the whole list as not text.  A byte
+    # order mark (Notepad's UTF-8) is no part of the first name.
+    data = path.read_bytes().removeprefix(b"\xef\xbb\xbf")
+    text = [os.fsdecode(line) for line in data.splitlines()]
     entries = []
-    for line in text.splitlines():
+    for line in text:
         line = line.strip()
         if not line or line.startswith("#"):
             continue

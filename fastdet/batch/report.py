@@ -6,13 +6,16 @@ starts when it scrolls into view).  Every text taken from the manifest (file
 names, reasons) is HTML-escaped and every link URL-quoted, so a file named
 ``<script>.mp4`` stays a name.  A file name that is not UTF-8 is shown with
 its odd bytes as ``\\xff`` (:func:`~fastdet.batch.inputs.display_name`) and
-linked by its bytes (``%FF``), so its link finds the file.
+linked by its bytes (``%FF``), so its link finds the file.  The summary table
+shows a name's control characters (a newline, ESC) as escapes (``\\n``,
+``\\x1b``), which a terminal prints rather than acts on.
 """
 
 from __future__ import annotations
 
 import html
 import os
+import re
 from pathlib import Path
 from urllib.parse import quote
 
@@ -47,6 +50,18 @@ document.querySelectorAll("video").forEach(video => watcher.observe(video));
 """
 
 
+#: C0 and C1 control characters: a terminal acts on them (a newline broke the table's row,
+#: ESC [31m turned the terminal red).
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
+
+
+def _printable(text):
+    """:func:`~fastdet.batch.inputs.display_name` of ``text`` with each control character
+    as its escape (``\\n``, ``\\x1b``), for the table printed on a terminal."""
+    return _CONTROL.sub(lambda match: match.group().encode("unicode_escape").decode("ascii"),
+                        display_name(text))
+
+
 def _cell(value, digits=0):
     if value is None:
         return "-"
@@ -69,12 +84,12 @@ def summary_table(records, skipped=(), wall=None):
     -------
     str
     """
-    width = max([len("video")] + [len(display_name(r["relative"])) for r in records])
+    width = max([len("video")] + [len(_printable(r["relative"])) for r in records])
     lines = [f"{'video':<{width}}  {'status':<7} {'frames':>7} {'vehicles':>8} {'fps':>7} "
              f"{'seconds':>8}"]
     for record in records:
         status = "skipped" if record["relative"] in skipped else record["status"]
-        lines.append(f"{display_name(record['relative']):<{width}}  {status:<7} "
+        lines.append(f"{_printable(record['relative']):<{width}}  {status:<7} "
                      f"{_cell(record.get('frames')):>7} {_cell(record.get('vehicles')):>8} "
                      f"{_cell(record.get('fps'), 1):>7} {_cell(record.get('seconds'), 1):>8}")
     done = [r for r in records if r["status"] == "done" and r["relative"] not in skipped]
@@ -85,7 +100,7 @@ def summary_table(records, skipped=(), wall=None):
     if wall:
         totals += f" in {wall:.1f} s ({frames / wall:.1f} fps over the batch)"
     lines.append(totals)
-    lines += [f"failed: {display_name(r['relative'])}: {display_name(r.get('reason', ''))}"
+    lines += [f"failed: {_printable(r['relative'])}: {_printable(r.get('reason', ''))}"
               for r in failed]
     return "\n".join(lines)
 

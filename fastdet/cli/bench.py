@@ -33,7 +33,9 @@ def add_bench_parser(subparsers):
                             "10000 for --long-run)")
     bench.add_argument("--threads", type=int, nargs="+", metavar="T",
                        help="thread counts to time fastdet with (default: 1 and all cores)")
-    bench.add_argument("--size", metavar="WxH", help="resize frames first, e.g. 1920x1080")
+    bench.add_argument("--size", metavar="WxH",
+                       help=f"resize frames first, e.g. 1920x1080 ({MIN_SIDE}-{MAX_SIDE} "
+                            "pixels a side)")
     bench.add_argument("--repeat", type=int, default=3,
                        help="timed calls per frame; the median is kept (default 3)")
     # The default lives in fastdet.bench.timing, which imports OpenCV and
@@ -61,8 +63,22 @@ def add_bench_parser(subparsers):
     return bench
 
 
+#: Largest side ``--size`` takes (8K video is 7680 or 8192 wide): 100000x100000 tried to
+#: allocate 30 GB per frame, and 16384x16384 failed in the labelling kernel.
+MAX_SIDE = 8192
+#: Smallest side ``--size`` takes: the 2x2-cell blocks of the HOG comparison need 16 pixels
+#: (scikit-image refuses less; 7x5 ended in its ValueError as an internal error).
+MIN_SIDE = 16
+
+
 def parse_size(text):
-    """``"1280x720"`` -> ``(1280, 720)``."""
+    """``"1280x720"`` -> ``(1280, 720)``.
+
+    Raises
+    ------
+    InputError
+        For anything but ``WxH`` with each side from :data:`MIN_SIDE` to :data:`MAX_SIDE`.
+    """
     from ..errors import InputError
 
     try:
@@ -71,7 +87,48 @@ def parse_size(text):
         raise InputError(f"--size must look like 1280x720, got {text!r}") from None
     if width < 1 or height < 1:
         raise InputError(f"--size must be positive, got {text!r}")
+    if not (MIN_SIDE <= width <= MAX_SIDE and MIN_SIDE <= height <= MAX_SIDE):
+        raise InputError(f"--size sides must be {MIN_SIDE}-{MAX_SIDE} pixels, got {text!r}")
     return width, height
+
+
+def check_frames_fit(video, count, size):
+    """Refuse frames at ``size`` that would not fit in the memory available now.
+
+    The benchmark decodes every frame it times before timing any (so that
+    decoding is not timed); at a large ``--size`` they would be allocated one
+    by one until the process is killed or OpenCV fails.
+
+    Parameters
+    ----------
+    video : str or Path
+    count : int or None
+        ``--frames`` (``None``: every frame of the video).
+    size : tuple of int
+        ``(width, height)`` of the resized frames.
+
+    Raises
+    ------
+    InputError
+        When the frames would need more than the memory Linux reports as available.
+    """
+    from ..errors import InputError
+    from ..video.source import VideoSource
+
+    try:
+        with open("/proc/meminfo") as handle:
+            available = next(int(line.split()[1]) * 1024 for line in handle
+                             if line.startswith("MemAvailable:"))
+    except (OSError, StopIteration, ValueError):   # pragma: no cover - not Linux
+        return
+    if count is None:
+        with VideoSource(video) as source:
+            count = source.frame_count or 1
+    needed = count * size[0] * size[1] * 3
+    if needed > available:
+        raise InputError(f"--size {size[0]}x{size[1]}: {count} frames would take "
+                         f"{needed / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB "
+                         "of memory available: use a smaller --size or fewer --frames")
 
 
 def _machine_line():
@@ -96,15 +153,21 @@ def cmd_bench(args):
     from ..bench.timing import TURN_FRAMES, read_frames
     from ..bench.two_cores import format_two_cores, two_core_ceiling
     from ..detector.config import load_config
+    from ..detector.detector import Detector
     from ..detector.model import load_model
     from ..errors import InputError
     from ..files.shared_data import data_dir
+    from ..video.stages import run_cores
 
     log = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
     for name in ("frames", "repeat", "rounds", "turn_frames"):
         value = getattr(args, name)
         if value is not None and value < 1:
             raise InputError(f"--{name.replace('_', '-')} must be at least 1, got {value}")
+    # Before any frame is read: 0 was refused only after decoding the video, and 100000
+    # started threads until "can't start new thread" (an internal error).
+    for value in args.threads or ():
+        run_cores(value)
     if args.reference_frames < 0:
         raise InputError(f"--reference-frames must be 0 (skip the reference) or more, got "
                          f"{args.reference_frames}")
@@ -115,6 +178,15 @@ def cmd_bench(args):
 
         check_output_path(args.plot)
         check_writable(args.plot)
+    # Both time one `fastdet run` setting: options they would silently ignore are refused.
+    if (args.video or args.long_run) and args.threads and len(args.threads) > 1:
+        raise InputError(f"--{'video' if args.video else 'long-run'} takes one --threads "
+                         f"count, got {len(args.threads)}")
+    if args.video and args.frames is not None:
+        from ..bench.video_run import LOOPED_FRAMES
+
+        raise InputError(f"--frames does not apply to --video (its input is made once, "
+                         f"{LOOPED_FRAMES} frames long)")
     if args.video:
         return _video_benchmark(args, log)
     if args.long_run:
@@ -126,9 +198,15 @@ def cmd_bench(args):
     threads = args.threads or sorted({1, numba.config.NUMBA_NUM_THREADS})
     model = load_model(args.model)
     config = load_config(args.config)
+    if size is not None:
+        check_frames_fit(video, args.frames, size)
     print(f"machine: {_machine_line()}")
     frames = read_frames(video, args.frames, size)
     frame_size = (frames[0].shape[1], frames[0].shape[0])
+    if not Detector(model=model, config=config, threads=1).plans(frame_size):
+        # Nothing to time (and the physical floor divided by zero: an internal error).
+        raise InputError(f"{video} at {frame_size[0]}x{frame_size[1]} is smaller than every "
+                         "search window: use a larger --size")
     print(f"frames: {len(frames)} of {video} at {frame_size[0]}x{frame_size[1]}; "
           f"model: {args.model or 'bundled default'}")
 

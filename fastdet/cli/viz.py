@@ -101,7 +101,8 @@ def _output_path(args, default_name):
     out = Path(args.out) if args.out else output_in_folder(Path("."), default_name)
     refuse_overwriting_inputs(out, [getattr(args, name, None) for name in
                                     ("image", "frame", "annotations", "model", "config")])
-    return check_output_path(out)
+    # The text as given: a trailing slash, which Path drops, names a folder.
+    return check_output_path(args.out or out)
 
 
 def _report(path):

@@ -14,6 +14,7 @@ line up, and each is written atomically: a reader never sees half a file.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import cv2
@@ -74,7 +75,12 @@ def check_output_path(path):
     Checked before any work is done, so that a typo in ``--out`` fails at
     once rather than after a detector run.  The format follows the suffix:
     ``.png`` and the other formats matplotlib writes (``.svg``, ``.pdf``...).
+    A name ending in a slash names a folder and is refused (``Path`` drops
+    the slash: ``--out fig.png/`` wrote the file ``fig.png``).
     """
+    if os.fspath(path).endswith(("/", os.sep)):
+        raise InputError(f"cannot write a figure to {os.fspath(path)}: the name ends in a "
+                         "slash, so it names a folder")
     path = Path(path)
     fmt = path.suffix.lstrip(".").lower()
     supported = _supported_formats()

@@ -210,3 +210,28 @@ def test_the_package_called_without_its_arguments_names_batch():
 
     with pytest.raises(TypeError, match=r"^batch\(\) missing 2 required positional"):
         fastdet.batch()
+
+
+def test_a_list_may_name_files_that_are_not_utf8(tmp_path):
+    """`find > list.txt` over a folder holding a name that is not UTF-8: the list was
+    refused as "neither a video nor a text file", though such a video named directly
+    or found in a folder is taken."""
+    odd = touch(Path(os.fsdecode(bytes(tmp_path) + b"/caf\xe9.mp4")))
+    touch(tmp_path / "b.mp4")
+    (tmp_path / "list.txt").write_bytes(b"caf\xe9.mp4\r\nb.mp4\r\n")
+    videos = find_videos([tmp_path / "list.txt"])
+    assert [v.path for v in videos] == [odd, tmp_path / "b.mp4"]
+    assert [os.fsencode(v.relative) for v in videos] == [b"caf\xe9.mp4", b"b.mp4"]
+
+
+def test_a_missing_listed_name_that_is_not_utf8_shows_its_bytes(tmp_path):
+    (tmp_path / "list.txt").write_bytes(b"caf\xe9.mp4\n")
+    with pytest.raises(InputError, match=r"input not found: .*caf\\xe9\.mp4 \(listed in"):
+        find_videos([tmp_path / "list.txt"])
+
+
+def test_a_byte_order_mark_is_no_part_of_the_first_name(tmp_path):
+    """Notepad's UTF-8 starts with EF BB BF: 'input not found: \\ufeffa.mp4'."""
+    touch(tmp_path / "a.mp4")
+    (tmp_path / "list.txt").write_bytes(b"\xef\xbb\xbfa.mp4\n")
+    assert [v.relative for v in find_videos([tmp_path / "list.txt"])] == ["a.mp4"]

@@ -107,3 +107,16 @@ def test_the_page_works_in_headless_chromium(tmp_path):
     assert state["articles"] == ["a.mp4", NASTY, "bad.mp4"]
     assert state["thumbnails"] == [True, True]
     assert state["error"] is None and not state["paused"]
+
+
+def test_summary_table_escapes_control_characters_of_names_and_reasons():
+    """A video named ``new<LF>line.mp4`` broke its row in two; ``ESC[31m`` in a name
+    turned the terminal red."""
+    records = [{"relative": "new\nline.mp4", "status": "done", "frames": 4},
+               {"relative": "esc\x1b[31mred.mp4", "status": "failed",
+                "reason": "bad\rframe\x85"}]
+    lines = summary_table(records).splitlines()
+    assert len(lines) == 5
+    assert lines[1].split()[:2] == ["new\\nline.mp4", "done"]
+    assert lines[2].split()[:2] == ["esc\\x1b[31mred.mp4", "failed"]
+    assert lines[4] == "failed: esc\\x1b[31mred.mp4: bad\\rframe\\x85"

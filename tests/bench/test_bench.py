@@ -184,3 +184,59 @@ def test_bench_help_names_the_turn_frames_default(capsys):
         main(["bench", "--help"])
     help_text = " ".join(capsys.readouterr().out.split())
     assert f"untimed call (default {TURN_FRAMES})" in help_text
+
+
+@pytest.mark.parametrize("threads", [["0"], ["1", "100000"]])
+def test_bench_refuses_thread_counts_before_reading_frames(capsys, model_path, monkeypatch,
+                                                           threads):
+    """0 was refused only after decoding the video; 100000 started threads until
+    "can't start new thread", an internal error (exit 70)."""
+    import fastdet.bench.timing as timing
+
+    monkeypatch.setattr(timing, "read_frames", lambda *a, **k: pytest.fail("frames were read"))
+    assert main(["bench", "--model", str(model_path), "--threads", *threads]) == EXIT_ERROR
+    assert f"--threads must be 1-256, got {threads[-1]}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("size", ["7x5", "100000x100000", "16384x16384"])
+def test_bench_refuses_sizes_it_cannot_time(capsys, model_path, size):
+    """7x5 ended in scikit-image's ValueError, 100000x100000 in OpenCV's failed 30 GB
+    allocation, 16384x16384 in the labelling kernel: internal errors (exit 70)."""
+    assert main(["bench", "--model", str(model_path), "--size", size]) == EXIT_ERROR
+    assert f"--size sides must be 16-8192 pixels, got '{size}'" in capsys.readouterr().err
+
+
+def test_bench_refuses_frames_that_would_not_fit_in_memory(capsys, model_path, monkeypatch):
+    import fastdet.bench.timing as timing
+
+    monkeypatch.setattr(timing, "read_frames", lambda *a, **k: pytest.fail("frames were read"))
+    assert main(["bench", "--model", str(model_path), "--size", "8192x8192",
+                 "--frames", "100000"]) == EXIT_ERROR
+    err = capsys.readouterr().err
+    assert err.startswith("fastdet: error: --size 8192x8192: 100000 frames would take 18750.0 GiB")
+    assert err.count("\n") == 1
+
+
+def test_bench_refuses_frames_smaller_than_every_window(capsys, model_path, data_dir):
+    """No window to score: the physical floor divided by zero (an internal error)."""
+    assert main(["bench", "--model", str(model_path), "--size", "16x16", "--frames", "1",
+                 "--threads", "1", "--reference-frames", "0", "--no-opencv"]) == EXIT_ERROR
+    err = capsys.readouterr().err
+    assert "test_video.mp4 at 16x16 is smaller than every search window" in err
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--video", "--frames", "5"], "--frames does not apply to --video"),
+    (["--video", "--threads", "1", "2"], "--video takes one --threads count, got 2"),
+    (["--long-run", "--threads", "1", "2"], "--long-run takes one --threads count, got 2"),
+])
+def test_bench_refuses_what_video_and_long_run_would_ignore(capsys, monkeypatch, options,
+                                                            message):
+    """Both time one `fastdet run` setting: --frames with --video and every thread
+    count but the first were silently dropped."""
+    import fastdet.cli.bench as bench
+
+    monkeypatch.setattr(bench, "_video_benchmark", lambda *a: pytest.fail("benchmark ran"))
+    monkeypatch.setattr(bench, "_long_run", lambda *a: pytest.fail("benchmark ran"))
+    assert main(["bench", *options]) == EXIT_ERROR
+    assert message in capsys.readouterr().err

@@ -452,3 +452,19 @@ def test_boxes_drawn_on_yuv_planes_look_like_boxes_drawn_on_bgr():
     assert (changed_yuv & ~changed_bgr).sum() < 0.25 * changed_bgr.sum()
     for x, y in ((20, 60), (100, 70)):           # a point on each box's left edge
         assert np.abs(drawn_yuv[y, x].astype(int) - drawn_bgr[y, x]).max() < 40
+
+
+@pytest.mark.parametrize("command", ["hog", "windows"])
+def test_an_output_name_ending_in_a_slash_is_refused(model_path, frame_path, tmp_path, command):
+    """``--out fig.png/`` names a folder; Path dropped the slash and the figure was
+    written to the file ``fig.png``."""
+    with pytest.raises(InputError, match="ends in a slash, so it names a folder"):
+        run_viz([command, frame_path, "--model", model_path, "--out", f"{tmp_path}/fig.png/"])
+    assert not (tmp_path / "fig.png").exists()
+
+
+def test_bench_plot_name_ending_in_a_slash_is_refused(tmp_path, capsys):
+    from fastdet.cli.app import EXIT_ERROR, main
+
+    assert main(["bench", "--plot", f"{tmp_path}/scaling.png/"]) == EXIT_ERROR
+    assert "ends in a slash, so it names a folder" in capsys.readouterr().err
