@@ -96,6 +96,8 @@ def local_layout(video_count, workers=None, threads=None, segmenting=False, core
     """
     _check_worker_count(workers)
     cores = usable_cores() if cores is None else cores
+    if workers is not None:
+        _check_workers_fit(workers, memory)
     if threads is None:
         if workers is not None:
             threads = max(1, cores // workers)
@@ -165,6 +167,23 @@ def _check_worker_count(workers):
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 1):
         raise InputError(f"--workers must be at least 1, got {workers}")
+
+
+def _check_workers_fit(workers, memory=None):
+    """Refuse more local worker processes than the machine's memory holds.
+
+    Each one is a Python process with fastdet, Numba, OpenCV and Dask loaded
+    (:data:`WORKER_MEMORY` planned): ``--workers 1000`` started processes
+    until Dask's own bookkeeping failed in a traceback, then hung.
+    """
+    import psutil
+
+    memory = psutil.virtual_memory().total if memory is None else memory
+    if workers * WORKER_MEMORY > memory:
+        raise InputError(f"--workers {workers}: local worker processes need about "
+                         f"{WORKER_MEMORY >> 20} MiB each, {workers * WORKER_MEMORY / 2**30:.1f} "
+                         f"GiB in all, more than this machine's {memory / 2**30:.1f} GiB "
+                         f"(at most {max(1, memory // WORKER_MEMORY)} here)")
 
 
 class _IgnoreInterrupts(WorkerPlugin):

@@ -23,6 +23,7 @@ from ..video.codecs import DEFAULT_CODEC, DEFAULT_CRF, DEFAULT_PRESET
 from ..video.config import TrackConfig, load_track_config
 from ..video.detection_files import FORMATS
 from ..video.sink import check_encoder, refuse_encoder_options_without_video
+from ..video.stages import MAX_THREADS
 
 #: ``BatchSettings.encoder`` when no --codec, --crf or --preset is given.
 DEFAULT_ENCODER = ("h264", None, None)
@@ -137,8 +138,10 @@ def make_settings(model=None, config=None, every=None, track=False, video=True,
         raise InputError(f"unknown detections format {format!r} (choose from {', '.join(FORMATS)})")
     if every is not None and (isinstance(every, bool) or not isinstance(every, int) or every < 1):
         raise InputError(f"--every must be a whole number >= 1, got {every!r}")
-    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
-        raise InputError(f"--threads must be at least 1, got {threads}")
+    if (isinstance(threads, bool) or not isinstance(threads, int)
+            or not 1 <= threads <= MAX_THREADS):
+        # As fastdet run bounds them: 100000 failed in MemoryError tracebacks.
+        raise InputError(f"--threads must be 1-{MAX_THREADS}, got {threads}")
     if crf is not None and (isinstance(crf, bool) or not isinstance(crf, int)):
         raise InputError(f"--crf must be a whole number, got {crf!r}")
     if video:

@@ -350,6 +350,10 @@ def test_fewer_videos_than_cores_share_the_cores():
     assert local_layout(1, cores=8, memory=WORKER_MEMORY) == (1, 8)
     with pytest.raises(InputError, match="--workers must be at least 1"):
         local_layout(1, workers=0)
+    # As many workers as the memory holds, not one more (--workers 1000 hung after a traceback).
+    assert local_layout(1, workers=4, threads=1, cores=2, memory=4 * WORKER_MEMORY) == (4, 1)
+    with pytest.raises(InputError, match=r"--workers 5: .* more than this machine's .*at most 4"):
+        local_layout(1, workers=5, cores=2, memory=4 * WORKER_MEMORY)
 
 
 def test_one_video_alone_on_the_local_cluster_uses_every_core(client, clips, tmp_path):

@@ -235,3 +235,10 @@ def test_a_byte_order_mark_is_no_part_of_the_first_name(tmp_path):
     touch(tmp_path / "a.mp4")
     (tmp_path / "list.txt").write_bytes(b"\xef\xbb\xbfa.mp4\n")
     assert [v.relative for v in find_videos([tmp_path / "list.txt"])] == ["a.mp4"]
+
+
+@pytest.mark.parametrize("threads", [0, 257, 100000])
+def test_threads_per_task_are_bounded_as_fastdet_run_bounds_them(threads):
+    """100000 ended in MemoryError tracebacks."""
+    with pytest.raises(InputError, match=rf"^--threads must be 1-256, got {threads}$"):
+        make_settings(threads=threads)
