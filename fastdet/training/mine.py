@@ -242,10 +242,10 @@ def mine(detector, sources, annotations, out_dir, max_iou=0.1):
     ------
     InputError
         Before any frame is searched: for a source that is missing or a
-        folder, and for one given twice (:func:`crop_prefixes`); later, for a frame that cannot be read,
-        an annotated video frame past the video's end, no annotated frame
-        at all, or a crop that cannot be written.  Crops already saved are
-        removed again.
+        folder, and for one given twice (:func:`crop_prefixes`); later, for
+        a frame that cannot be read, an annotated video frame past the
+        video's end, no annotated frame at all, or a crop that cannot be
+        written.  Crops already saved are removed again.
     """
     # A list: the sources are gone through more than once, and a generator only once (it
     # was used up by the checks, and nothing was mined).

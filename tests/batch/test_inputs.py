@@ -200,7 +200,8 @@ def test_an_unknown_option_is_named_against_batch_itself(tmp_path, monkeypatch, 
     monkeypatch.setattr(batch_module, "batch_client", no_cluster)
     video = tmp_path / "a.mp4"
     video.write_bytes(b"")
-    with pytest.raises(TypeError, match=r"^batch\(\) got an unexpected keyword argument '(bogus|trak)'$"):
+    unexpected = r"^batch\(\) got an unexpected keyword argument '(bogus|trak)'$"
+    with pytest.raises(TypeError, match=unexpected):
         call(fastdet.batch, video, tmp_path / "out")
     assert not (tmp_path / "out").exists()
 

@@ -101,7 +101,8 @@ def expect_error(capsys, argv, words):
 
 def test_errors(stub_pipeline, block_video, capsys, tmp_path, data_dir):
     video, annotations = block_video
-    expect_error(capsys, [annotations, video, "--split", "test"], f"no split 'test' in {annotations}")
+    expect_error(capsys, [annotations, video, "--split", "test"],
+                 f"no split 'test' in {annotations}")
     expect_error(capsys, [annotations, tmp_path / "none.mp4"], "no such folder or video")
     images = data_dir / "test_images"
     expect_error(capsys, [images / "annotations.json", images, "--every", "5"],

@@ -267,7 +267,6 @@ def test_cached_load_takes_numbas_path_for_unchecked_versions(monkeypatch):
     assert not cached_load.supported(numba_cache)
 
 
-
 def _in_fresh_process(code, **env):
     """Run ``code`` in a new interpreter from the checkout; the completed process."""
     return subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
