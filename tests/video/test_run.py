@@ -398,19 +398,11 @@ def test_process_video_refuses_arguments_it_would_truncate_or_trip_on(tmp_path, 
     """start=1.5 began at frame 1 (int() before the source's check), threads=0 meant all
     cores and 2.5 two, a model path failed with an AttributeError mid-pipeline, and a
     progress that was no function with a TypeError on the first tick."""
-    clip = write_block_clip(tmp_path / "clip.mp4", 4)
+    clip = block_video(tmp_path / "clip.mp4", 4)
     arguments.setdefault("detector", VideoPipeline(BlockDetector()))
     with pytest.raises(InputError, match=message):
         process_video(clip, tmp_path / "out.mp4", detections=tmp_path / "d.jsonl", **arguments)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.mp4"]
-
-
-def write_block_clip(path, count):
-    frames, _ = moving_block(count)
-    with VideoSink(path, 10.0, (frames[0].shape[1], frames[0].shape[0])) as sink:
-        for frame in frames:
-            sink.write(frame)
-    return path
 
 
 def test_threads_have_an_upper_bound(tmp_path):
@@ -418,7 +410,7 @@ def test_threads_have_an_upper_bound(tmp_path):
     thread", or no frame decoded and a process that never ended.  The bound itself runs."""
     from fastdet.video.stages import MAX_THREADS
 
-    clip = write_block_clip(tmp_path / "clip.mp4", 4)
+    clip = block_video(tmp_path / "clip.mp4", 4)
     with pytest.raises(InputError, match=f"--threads must be 1-{MAX_THREADS}, got 100000"):
         process_video(clip, tmp_path / "out.mp4", VideoPipeline(BlockDetector()),
                       threads=100000)
@@ -431,7 +423,7 @@ def test_threads_have_an_upper_bound(tmp_path):
 def test_a_source_closed_or_partly_read_is_refused(tmp_path):
     """Its frames were counted from its start and its first frame (gone) warmed up the
     kernels: "a frame must be a numpy array, got NoneType"."""
-    clip = write_block_clip(tmp_path / "clip.mp4", 4)
+    clip = block_video(tmp_path / "clip.mp4", 4)
     closed = VideoSource(clip)
     closed.close()
     with pytest.raises(InputError, match="clip.mp4 is closed"):
@@ -449,7 +441,7 @@ def test_a_source_closed_or_partly_read_is_refused(tmp_path):
 def test_a_pipeline_used_again_starts_afresh(tmp_path, track):
     """A second video through the same VideoPipeline began with the first one's smoothed
     heat, tracks and ids: its detections were not those of a fresh run."""
-    clip = write_block_clip(tmp_path / "clip.mp4", 9)
+    clip = block_video(tmp_path / "clip.mp4", 9)
     pipeline = VideoPipeline(BlockDetector(), TrackConfig(**track))
     outputs = []
     for name in ("first.jsonl", "second.jsonl"):
