@@ -29,6 +29,11 @@ from ..detector.detector import Detector
 #: (``every``) longer than this scores fewer frames at once.
 MAX_PERIOD = 8
 
+#: Most frames scored at once (as ``--threads``,
+#: :data:`fastdet.video.stages.MAX_THREADS`): each is a detector and a thread,
+#: and the look-ahead holds about ``2 * workers`` frames to search.
+MAX_WORKERS = 256
+
 #: Frames to search queued per thread scoring them, besides the calling
 #: thread's next one.  The calling thread queues frames only between the
 #: frames it scores itself, and it also runs every frame's temporal steps, so a

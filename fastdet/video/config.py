@@ -127,7 +127,8 @@ class TrackConfig:
         if not isinstance(data, dict):
             raise ConfigError("[track] must be a table")
         known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - known)
+        # str: a key that is not one (from_dict({1: 2})) cannot be sorted or joined.
+        unknown = sorted(str(key) for key in set(data) - known)
         if unknown:
             raise ConfigError(f"unknown key(s) in [track]: {', '.join(unknown)}")
         return cls(**data)

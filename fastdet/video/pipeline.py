@@ -39,6 +39,8 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import numbers
+import threading
 import time
 
 import numpy as np
@@ -47,7 +49,7 @@ from ..detector.detections import Detections
 from ..detector.frames import as_bgr_frame
 from ..detector.plan import search_band
 from ..errors import InputError
-from .ahead import process_ahead
+from .ahead import MAX_WORKERS, process_ahead
 from .config import TrackConfig
 from .patch import SceneChangeTrigger
 from .smoothing import make_heat_smoother
@@ -66,6 +68,20 @@ class _Stopwatch:
         result = method(*args)
         self.seconds += time.perf_counter() - start
         return result
+
+
+#: What :class:`VideoPipeline` calls on its detector.
+DETECTOR_METHODS = ("hits", "heat_region", "boxes_from_heat")
+
+
+def _whole_number(name, value, low=None, high=None):
+    # Checked when the run is asked for, not at its first frame: 2.5 once gave
+    # indices 2.5, 3.5, ... and workers=10**6 built a million detectors.
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise InputError(f"{name} must be a whole number, got {value!r}")
+    if (low is not None and value < low) or (high is not None and value > high):
+        raise InputError(f"{name} must be {low}-{high}, got {value}")
+    return int(value)
 
 
 def _on_schedule(first, period, index):
@@ -117,10 +133,21 @@ class VideoPipeline:
     frames, full_searches : int
         Frames processed and how many of them were fully searched.
 
+    Raises
+    ------
+    TypeError
+        When ``detector`` is a class or lacks one of those methods, or
+        ``config`` is not a :class:`TrackConfig`.
+
     Notes
     -----
     Frames must come in order; a change of frame size starts over (new
     tracks).  Frame indices are counted from ``first_index``.
+
+    A pipeline is the state of one stream: calling :meth:`process` from a
+    second thread while one call is running raises :class:`RuntimeError`
+    rather than mixing two streams' frames.  Give each thread a pipeline of
+    its own (they may share one :class:`~fastdet.Detector`).
 
     Examples
     --------
@@ -132,9 +159,34 @@ class VideoPipeline:
     """
 
     def __init__(self, detector, config=None):
+        # Checked here: else the first frame failed deep inside, with an AttributeError.
+        if isinstance(detector, type):
+            raise TypeError(f"detector must be an instance, got the class {detector.__name__}")
+        missing = [name for name in DETECTOR_METHODS
+                   if not callable(getattr(detector, name, None))]
+        if missing:
+            raise TypeError(f"detector must be a fastdet.Detector or have its methods "
+                            f"{', '.join(DETECTOR_METHODS)}; {type(detector).__name__} "
+                            f"lacks {', '.join(missing)}")
+        if config is None:
+            config = TrackConfig()
+        elif not isinstance(config, TrackConfig):
+            raise TypeError(f"config must be a TrackConfig (TrackConfig.from_dict or "
+                            f"load_track_config make one), got {type(config).__name__}")
         self.detector = detector
-        self.config = config or TrackConfig()
+        self.config = config
+        self._busy = threading.Lock()
         self.reset()
+
+    def __getstate__(self):
+        # A lock does not pickle or copy: a copy (copy.deepcopy, pickle) gets its own.
+        state = self.__dict__.copy()
+        del state["_busy"]
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._busy = threading.Lock()
 
     def warm_up(self, frame):
         """Load (or compile) every kernel processing ``frame`` calls; returns the seconds it took.
@@ -171,12 +223,15 @@ class VideoPipeline:
         Parameters
         ----------
         frames : iterable of ndarray
-            BGR uint8 frames (grey and BGRA accepted), in order.
+            BGR uint8 frames (grey and BGRA accepted), in order; a stack of
+            frames (one array of shape (N, H, W, C)) too, but not one frame.
         first_index : int
-            Index of the first frame (e.g. the ``--start`` frame of a video).
+            Index of the first frame (e.g. the ``--start`` frame of a video);
+            any whole number, negative too (warm-up frames before a range).
         workers : int
-            Frames scored at once, each by a single-thread detector of its
-            own (:func:`fastdet.video.ahead.process_ahead`; without patch
+            Frames scored at once (1 to :data:`~fastdet.video.ahead.MAX_WORKERS`),
+            each by a single-thread detector of its own
+            (:func:`fastdet.video.ahead.process_ahead`; without patch
             tracking and with a :class:`~fastdet.Detector`): the same
             results as one at a time.
 
@@ -188,7 +243,25 @@ class VideoPipeline:
         boxes : ndarray of int32, shape (N, 4)
             ``[x1, y1, x2, y2]``, ``x2``/``y2`` exclusive.
         track_ids : ndarray of int64, shape (N,)
+
+        Raises
+        ------
+        InputError
+            At the call, before any frame is read, for a ``first_index`` or
+            ``workers`` that is not such a whole number.
+        TypeError
+            At the call, for one frame given instead of an iterable of them
+            (iterating it would take its rows for frames).
         """
+        first_index = _whole_number("first_index", first_index)
+        workers = _whole_number("workers", workers, 1, MAX_WORKERS)
+        if isinstance(frames, np.ndarray) and (frames.ndim == 2 or frames.ndim == 3
+                                               and frames.shape[2] in (1, 3, 4)):
+            raise TypeError(f"frames must be an iterable of frames, got one frame of shape "
+                            f"{frames.shape} (give [frame], or call process(frame))")
+        return self._run(frames, first_index, workers)
+
+    def _run(self, frames, first_index, workers):
         for offset, (frame, _, detections) in enumerate(process_ahead(self, frames, workers)):
             yield first_index + offset, frame, detections.xyxy, detections.track_id
 
@@ -278,7 +351,26 @@ class VideoPipeline:
         -------
         Detections
             With ``track_id`` set.
+
+        Raises
+        ------
+        InputError
+            For a frame that is not an image array, or ``None`` when the
+            frame is needed.
+        RuntimeError
+            While another thread is in this pipeline's :meth:`process`.
         """
+        if not self._busy.acquire(blocking=False):
+            # Two threads' frames interleaved would be one stream's tracks and
+            # heat fed with another's, silently: say so instead.
+            raise RuntimeError("VideoPipeline.process called from two threads at once; "
+                               "give each thread a pipeline of its own")
+        try:
+            return self._process(frame, hits)
+        finally:
+            self._busy.release()
+
+    def _process(self, frame, hits):
         start = time.perf_counter()
         if frame is None:
             if self.wants_frame:
@@ -332,8 +424,10 @@ class VideoPipeline:
         # Like the detector's scales, the radius is given for its reference
         # frame size (a detector without one: for the frame itself).
         search_config = getattr(getattr(self.detector, "config", None), "search", None)
-        ref_w, ref_h = getattr(search_config, "reference_size", size)
-        scale = math.sqrt(width / ref_w * height / ref_h)
+        reference = getattr(search_config, "reference_size", None)
+        # Not size / size: a frame without pixels (0 x 0) divided by zero.
+        scale = 1.0 if reference is None else math.sqrt(width / reference[0]
+                                                        * height / reference[1])
         self._radius = int(round(self.config.search_radius * scale))
         self._scene = SceneChangeTrigger(self.config.scene_change_threshold,
                                          self.config.thumbnail_factor,
