@@ -12,9 +12,18 @@ with ``"status": "failed"`` and a one-line ``"reason"`` for a video that could
 not be processed.  Records are appended (and flushed to disk) as videos
 finish, so an interrupted batch keeps everything it completed; the last
 record of a video wins, a torn last line is ignored, and the end of a run
-rewrites the file with one record per video.  So is any line that is not a
-record as this module writes them (not UTF-8, not JSON, a field missing or
-of another type: an edited or foreign file): its video is then processed again.
+rewrites the file with one record per video.
+
+Lines are strict JSON (RFC 8259, :mod:`fastdet.files.strict_json`): a name
+that is not UTF-8 (``relative``, ``input``, an output, a ``reason`` naming
+it) is written as text with each odd byte as ``\\xff``, and its exact bytes
+in base64 beside it in ``"<field>_bytes"`` (``"relative_bytes"``,
+``"outputs": {"video_bytes": ...}``), present only for such a name; reading
+puts the name back as Python's ``str`` of the bytes.  Lines written before
+(``"\\udcff"`` escapes) read as they did.  A torn last line is ignored; so
+is any line that is not a record as this module writes them (not UTF-8, not
+JSON, a field missing or of another type: an edited or foreign file): its
+video is then processed again.
 """
 
 from __future__ import annotations
@@ -25,6 +34,7 @@ import os
 from pathlib import Path
 
 from ..files.atomic import atomic_path
+from ..files.strict_json import dumps, restore_names
 
 MANIFEST_NAME = "manifest.jsonl"
 _CHUNK = 1 << 20
@@ -119,7 +129,7 @@ class Manifest:
             with open(self.path, "rb") as handle:
                 for line in handle:
                     try:
-                        record = json.loads(line.decode("utf-8"))
+                        record = restore_names(json.loads(line.decode("utf-8")))
                     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
                         continue          # a line torn by a crash, or not written by fastdet
                     if is_record(record):
@@ -139,7 +149,7 @@ class Manifest:
                 handle.seek(-1, os.SEEK_END)
                 if handle.read(1) != b"\n":
                     handle.write(b"\n")   # end a torn line so this record stands alone
-            handle.write(json.dumps(record, sort_keys=True).encode("utf-8") + b"\n")
+            handle.write(_line(record).encode("utf-8") + b"\n")
             handle.flush()
             os.fsync(handle.fileno())
 
@@ -147,4 +157,11 @@ class Manifest:
         """Rewrite the file atomically with one record per video, sorted by path."""
         with atomic_path(self.path) as tmp, open(tmp, "w", encoding="utf-8") as handle:
             for relative in sorted(self.records):
-                handle.write(json.dumps(self.records[relative], sort_keys=True) + "\n")
+                handle.write(_line(self.records[relative]) + "\n")
+
+
+def _line(record):
+    """A record as one line of strict JSON (:mod:`fastdet.files.strict_json`): a name that
+    is not UTF-8 as text with ``\\xff`` plus its bytes in ``"<field>_bytes"``, and a
+    non-finite number (none is expected: ``fps`` is ``None`` without a time) as null."""
+    return dumps(record, nonfinite="null", sort_keys=True)

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 from ..errors import InputError
 from ..files.atomic import output_folder, output_in_folder, refuse_overwriting_inputs, same_file
 from ..files.images import read_image, write_image
+from ..files.strict_json import dumps
 from .common import (add_horizon_option, add_model_options, compile_notice, make_detector,
                      resolve_images_horizon)
 
@@ -27,6 +27,10 @@ def add_detect_parser(subparsers):
 
 def cmd_detect(args):
     """Print ``{"image", "boxes", "ms"}`` per image; optionally write the drawn images.
+
+    Strict JSON (:mod:`fastdet.files.strict_json`): an image name that is not
+    UTF-8 is printed with its odd bytes as ``\\xff``, and its bytes in base64
+    in ``"image_bytes"`` (``"output_bytes"`` for the drawing).
 
     An ``"auto"`` horizon is one for all the images, as for a video's frames:
     they are taken to be one camera's (see :func:`resolve_images_horizon`).
@@ -55,7 +59,7 @@ def cmd_detect(args):
         if targets is not None:
             write_image(targets[index], draw_detections(image, detections))
             record["output"] = str(targets[index])
-        print(json.dumps(record), flush=True)
+        print(dumps(record), flush=True)
     return 0
 
 

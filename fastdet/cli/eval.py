@@ -10,12 +10,12 @@ vehicles carry identities (``"id"``) the tracking metrics of py-motmetrics
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 from ..errors import InputError
 from ..files.images import read_image
+from ..files.strict_json import dumps
 from .common import (add_horizon_option, add_model_options, add_schedule_options,
                      compile_notice, make_detector, make_pipeline, resolve_images_horizon)
 
@@ -79,7 +79,8 @@ def cmd_eval(args):
         out = report.to_dict()
         if tracking is not None:
             out["tracking"] = tracking.to_dict()
-        print(json.dumps(out))
+        # A figure without a denominator (NaN, e.g. an AP gain without vehicles) is null.
+        print(dumps(out, nonfinite="null"))
         return 0
     print(f"images {len(annotations)}  vehicles {report.n_gt}  "
           f"TP {report.tp}  FP {report.fp}  FN {report.fn}")

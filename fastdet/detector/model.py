@@ -27,6 +27,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..files.atomic import atomic_path
+from ..files.strict_json import dumps, restore_names
 from .features import WINDOW, FeatureLayout, FeatureOptions
 
 FORMAT_NAME = "fastdet-model"
@@ -152,7 +153,11 @@ class Model:
             "settings_sha256": _settings_digest(self.bias, self.options.to_dict()),
             "report": self.report,
         }
-        blob = np.frombuffer(json.dumps(metadata, sort_keys=True).encode("utf-8"), dtype=np.uint8)
+        # Strict JSON: the bias is finite (checked above); a non-finite figure of the
+        # informational report is null, and a name that is not UTF-8 (its "data" folder)
+        # is text plus "<field>_bytes" (fastdet.files.strict_json), read back by _parse.
+        text = dumps(metadata, nonfinite="null", sort_keys=True)
+        blob = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
         buffer = io.BytesIO()
         np.savez(buffer, weights=self.weights, metadata=blob)
         return buffer.getvalue()
@@ -272,7 +277,7 @@ def _parse(handle, name):
     settings = metadata.get("settings_sha256")
     if settings is not None and settings != _settings_digest(bias, options.to_dict()):
         raise ModelError(f"{name} failed its checksum: the bias or feature options were modified")
-    report = metadata.get("report", {})
+    report = restore_names(metadata.get("report", {}))
     try:
         return Model(weights=weights, bias=bias, options=options,
                      report=report if isinstance(report, dict) else {})

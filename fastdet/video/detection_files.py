@@ -32,6 +32,7 @@ import numpy as np
 from ..detector.detections import Detections
 from ..errors import InputError
 from ..files.atomic import StagedFile
+from ..files.strict_json import dumps
 from .standard_output import ReaderGone, writes_standard_output
 
 FORMATS = ("jsonl", "csv", "mot")
@@ -100,8 +101,9 @@ class DetectionWriter(StagedFile):
         self.frames += 1
         self.boxes += len(detections)
         if self.format == "jsonl":
-            line = json.dumps({"frame": frame_index, "boxes": detections.to_list()},
-                              separators=(", ", ": "))
+            # Strict JSON: Detections holds finite scores only, so allow_nan=False never fires.
+            line = dumps({"frame": frame_index, "boxes": detections.to_list()},
+                         separators=(", ", ": "))
             with self._writing():
                 self._handle.write(line + "\n")
             return

@@ -23,6 +23,7 @@ from fastdet.batch.report import summary_table, write_report
 from fastdet.batch.settings import make_settings
 from fastdet.cli.app import main
 from fastdet.errors import InputError
+from fastdet.files.strict_json import restore_names
 
 #: ``v\xff.mp4``: a file name that is not UTF-8, as Python sees it (surrogateescape).
 ODD_NAME = os.fsdecode(b"v\xff.mp4")
@@ -34,8 +35,20 @@ def clip(tmp_path_factory):
 
 
 def manifest_records(out):
+    """The manifest's records, each line parsed as strict JSON (RFC 8259: no NaN, no lone
+    surrogate), with the names that are not UTF-8 put back from their ``_bytes`` fields."""
     raw = (out / "manifest.jsonl").read_bytes()
-    return {r["relative"]: r for r in map(json.loads, raw.decode("utf-8").splitlines())}
+    records = []
+    for line in raw.decode("utf-8").splitlines():
+        record = json.loads(line, parse_constant=_not_json)
+        line.encode("utf-8")
+        json.dumps(record, ensure_ascii=False).encode("utf-8")   # a "\udcff" escape fails
+        records.append(restore_names(record))
+    return {r["relative"]: r for r in records}
+
+
+def _not_json(constant):
+    raise ValueError(f"{constant} is not JSON")
 
 
 @pytest.mark.parametrize("name, options", [("manifest.mp4", []), ("sub/manifest.mp4", []),
@@ -84,7 +97,10 @@ def test_a_name_that_is_not_utf8_is_processed_with_the_others(clip, tmp_path, ca
     printed = capsys.readouterr()
     assert code == 0, printed.err
     assert "v\\xff.mp4  done" in printed.out and "2 videos: 2 done" in printed.out
-    records = manifest_records(out)              # UTF-8 JSON, the name's bytes kept
+    records = manifest_records(out)              # strict UTF-8 JSON, the name's bytes kept
+    line = next(line for line in (out / "manifest.jsonl").read_text().splitlines()
+                if '"v\\\\xff.mp4"' in line)
+    assert '"relative_bytes": "dv8ubXA0"' in line       # base64 of b"v\xff.mp4"
     assert {r["status"] for r in records.values()} == {"done"}
     assert records[ODD_NAME]["outputs"]["detections"] == os.fsdecode(b"v\xff.jsonl")
     assert os.fsencode(records[ODD_NAME]["input"]) == os.fsencode(footage / ODD_NAME)
