@@ -32,7 +32,6 @@ import numpy as np
 from ..detector.detections import Detections
 from ..errors import InputError
 from ..files.atomic import StagedFile
-from ..files.strict_json import dumps
 from .standard_output import ReaderGone, writes_standard_output
 
 FORMATS = ("jsonl", "csv", "mot")
@@ -101,9 +100,12 @@ class DetectionWriter(StagedFile):
         self.frames += 1
         self.boxes += len(detections)
         if self.format == "jsonl":
-            # Strict JSON: Detections holds finite scores only, so allow_nan=False never fires.
-            line = dumps({"frame": frame_index, "boxes": detections.to_list()},
-                         separators=(", ", ": "))
+            # Strict JSON (RFC 8259) without fastdet.files.strict_json's walk of every
+            # key and value: this line holds only fixed ASCII keys and numbers, and the
+            # walk cost ~3 us a box on every frame (~27 us at 10 boxes).  Detections
+            # holds finite scores only, so allow_nan=False is a guard that never fires.
+            line = json.dumps({"frame": frame_index, "boxes": detections.to_list()},
+                              separators=(", ", ": "), allow_nan=False)
             with self._writing():
                 self._handle.write(line + "\n")
             return

@@ -74,6 +74,23 @@ class _Stopwatch:
 DETECTOR_METHODS = ("hits", "heat_region", "boxes_from_heat")
 
 
+def detector_problem(detector):
+    """Why ``detector`` cannot be a :class:`VideoPipeline`'s detector, or ``None``.
+
+    The one rule for both entry points: :class:`VideoPipeline` raises it as a
+    ``TypeError``, :func:`fastdet.video.run.process_video` as the
+    :class:`~fastdet.errors.InputError` its one-line problems are.
+    """
+    if isinstance(detector, type):
+        return f"detector must be an instance, got the class {detector.__name__}"
+    missing = [name for name in DETECTOR_METHODS if not callable(getattr(detector, name, None))]
+    if missing:
+        return (f"detector must be a fastdet.Detector or have its methods "
+                f"{', '.join(DETECTOR_METHODS)}; {type(detector).__name__} "
+                f"lacks {', '.join(missing)}")
+    return None
+
+
 def _whole_number(name, value, low=None, high=None):
     # Checked when the run is asked for, not at its first frame: 2.5 once gave
     # indices 2.5, 3.5, ... and workers=10**6 built a million detectors.
@@ -160,14 +177,9 @@ class VideoPipeline:
 
     def __init__(self, detector, config=None):
         # Checked here: else the first frame failed deep inside, with an AttributeError.
-        if isinstance(detector, type):
-            raise TypeError(f"detector must be an instance, got the class {detector.__name__}")
-        missing = [name for name in DETECTOR_METHODS
-                   if not callable(getattr(detector, name, None))]
-        if missing:
-            raise TypeError(f"detector must be a fastdet.Detector or have its methods "
-                            f"{', '.join(DETECTOR_METHODS)}; {type(detector).__name__} "
-                            f"lacks {', '.join(missing)}")
+        problem = detector_problem(detector)
+        if problem is not None:
+            raise TypeError(problem)
         if config is None:
             config = TrackConfig()
         elif not isinstance(config, TrackConfig):

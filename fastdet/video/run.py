@@ -27,7 +27,7 @@ from .config import TrackConfig, load_track_config
 from .detection_files import DetectionWriter
 from .horizon import resolve_video_horizon
 from .memory import reuse_freed_frames
-from .pipeline import VideoPipeline
+from .pipeline import VideoPipeline, detector_problem
 from .sink import VideoSink, refuse_encoder_options_without_video
 from .source import DEFAULT_TIMEOUT, VideoSource, source_file, whole_frame_number
 from .standard_output import ReaderGone
@@ -315,11 +315,15 @@ def process_video(source, target=None, detector=None, config=None, callback=None
         # Found here rather than as a TypeError on a stage thread mid-run.
         if function is not None and not callable(function):
             raise InputError(f"{name} must be callable, got {type(function).__name__}")
-    if not (detector is None or isinstance(detector, VideoPipeline)
-            or callable(getattr(detector, "hits", None))):
+    if detector is not None and not isinstance(detector, VideoPipeline):
         # A model path given here failed with an AttributeError deep in the pipeline.
-        raise InputError(f"detector must be a Detector or a VideoPipeline, not "
-                         f"{type(detector).__name__} (a model file: Detector(model=...))")
+        # VideoPipeline's own rule (all three methods, an instance), so that one
+        # lacking some of them is this one-line InputError too, not its TypeError.
+        problem = detector_problem(detector)
+        if problem is not None:
+            raise InputError(f"detector must be a Detector or a VideoPipeline, not "
+                             f"{type(detector).__name__} ({problem.split('; ')[-1]}; a "
+                             f"model file: Detector(model=...))")
     if isinstance(source, VideoSource):
         _refuse_used_source(source)
     if target is None:

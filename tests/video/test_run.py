@@ -383,6 +383,13 @@ def test_frames_scored_at_once_equal_a_plain_loop(data_dir, detector, tmp_path, 
     assert ("2 frames at once" in notes[0]) == (at_once == 2), notes
 
 
+class OnlyHits:
+    """A detector with ``hits`` but not the pipeline's other two methods."""
+
+    def hits(self, frame):
+        return None
+
+
 @pytest.mark.parametrize("arguments, message", [
     ({"start": 1.5}, "start must be a whole number of frames, got 1.5"),
     ({"start": 2, "warmup": 0.5}, "warmup must be a whole number of frames, got 0.5"),
@@ -390,6 +397,9 @@ def test_frames_scored_at_once_equal_a_plain_loop(data_dir, detector, tmp_path, 
     ({"threads": 2.5}, "--threads must be a whole number of cores, got 2.5"),
     ({"threads": -4}, "--threads must be 1-256, got -4"),
     ({"detector": "model.npz"}, "detector must be a Detector or a VideoPipeline, not str"),
+    # VideoPipeline's rule, as an InputError: one lacking some methods was its TypeError.
+    ({"detector": OnlyHits()}, r"not OnlyHits \(OnlyHits lacks heat_region, boxes_from_heat"),
+    ({"detector": BlockDetector}, r"not type \(detector must be an instance, got the class"),
     ({"progress": 5}, "progress must be callable, got int"),
     ({"log": "print"}, "log must be callable, got str"),
 ])
