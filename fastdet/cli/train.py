@@ -132,10 +132,19 @@ def _refuse_contradictions(args):
             ("--out", args.out is not None), ("--report", args.report is not None),
             ("--cv", args.cv), ("--source-holdout", args.source_holdout),
             ("--extra-negatives", bool(args.extra_negatives)),
-            ("several --C values", bool(args.C) and len(args.C) > 1)) if given]
+            ("several --C values", bool(args.C) and len(args.C) > 1),
+            # The study itself varies the colour space and the feature sets and splits
+            # in 5 folds: these were accepted and ignored (--spatial-size 0 and
+            # --hist-bins 0 became 32).  It fits no jittered or photometric copies,
+            # so --no-jitter and --no-photometric say what it does anyway.
+            ("--color-space", args.color_space != FeatureOptions().color_space),
+            ("--hog-channel", args.hog_channel != str(FeatureOptions().hog_channel)),
+            ("--no-hog", args.no_hog), ("--spatial-size 0", args.spatial_size == 0),
+            ("--hist-bins 0", args.hist_bins == 0), ("--folds", args.folds != 5)) if given]
         if ignored:
-            raise InputError(f"--compare writes no model and trains every combination with one "
-                             f"C: {', '.join(ignored)} cannot be used with it")
+            raise InputError(f"--compare writes no model and trains every colour space and "
+                             f"feature set with one C, on its own split: {', '.join(ignored)} "
+                             f"cannot be used with it")
     elif args.plot is not None:
         raise InputError("--plot draws the --compare table: add --compare, or use --report "
                          "for a training report")

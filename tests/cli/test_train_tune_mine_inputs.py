@@ -143,6 +143,13 @@ def test_source_holdout_of_a_single_source_names_the_sources(capsys, data, tmp_p
     (["--compare", "--out", "cmp.npz"], "--out cannot be used with it"),
     (["--compare", "--report", "r.png"], "--report cannot be used with it"),
     (["--compare", "--cv"], "--cv cannot be used with it"),
+    # The study varies these itself (--spatial-size 0 became 32, the others were ignored).
+    (["--compare", "--color-space", "YCrCb"], "--color-space cannot be used with it"),
+    (["--compare", "--hog-channel", "0"], "--hog-channel cannot be used with it"),
+    (["--compare", "--no-hog"], "--no-hog cannot be used with it"),
+    (["--compare", "--spatial-size", "0"], "--spatial-size 0 cannot be used with it"),
+    (["--compare", "--hist-bins", "0"], "--hist-bins 0 cannot be used with it"),
+    (["--compare", "--folds", "3"], "--folds cannot be used with it"),
     (["--plot", "p.png", "--out", "m.npz"], "--plot draws the --compare table"),
 ])
 def test_train_refuses_options_its_mode_would_ignore(capsys, data, tmp_path, args, message):
