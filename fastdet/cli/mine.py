@@ -13,7 +13,8 @@ def add_mine_parser(subparsers):
     add_annotation_options(mine, "mine")
     mine.add_argument("--out", required=True, metavar="DIR", help="folder for the 64x64 crops")
     mine.add_argument("--max-iou", type=float, default=0.1,
-                      help="a hit overlapping every vehicle less than this is a negative")
+                      help="a hit overlapping every vehicle less than this is a negative "
+                           "(default %(default)s)")
     add_model_options(mine)
     mine.set_defaults(handler=cmd_mine)
     return mine

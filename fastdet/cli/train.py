@@ -29,17 +29,24 @@ def add_train_parser(subparsers):
     train.add_argument("--compare", action="store_true",
                        help="train every colour space x feature set and print a table")
     train.add_argument("--plot", metavar="PNG", help="with --compare: bar chart of the table")
-    train.add_argument("--color-space", default=defaults.color_space, choices=sorted(COLOR_CODES))
+    # The feature options' defaults are the bundled model's; help shows them.
+    train.add_argument("--color-space", default=defaults.color_space, choices=sorted(COLOR_CODES),
+                       help="colour space of every feature (default %(default)s)")
     train.add_argument("--hog-channel", default=str(defaults.hog_channel),
-                       choices=["all", "gray", "0", "1", "2"])
-    train.add_argument("--orientations", type=int, default=defaults.orientations)
-    train.add_argument("--pixels-per-cell", type=int, default=defaults.pixels_per_cell)
-    train.add_argument("--cells-per-block", type=int, default=defaults.cells_per_block)
-    train.add_argument("--block-norm", default=defaults.block_norm, choices=sorted(NORM_CODES))
+                       choices=["all", "gray", "0", "1", "2"],
+                       help="channels HOG is computed on (default %(default)s)")
+    train.add_argument("--orientations", type=int, default=defaults.orientations,
+                       help="HOG orientation bins (default %(default)s)")
+    train.add_argument("--pixels-per-cell", type=int, default=defaults.pixels_per_cell,
+                       help="HOG cell side (default %(default)s)")
+    train.add_argument("--cells-per-block", type=int, default=defaults.cells_per_block,
+                       help="HOG block side in cells (default %(default)s)")
+    train.add_argument("--block-norm", default=defaults.block_norm, choices=sorted(NORM_CODES),
+                       help="HOG block normalisation (default %(default)s)")
     train.add_argument("--spatial-size", type=int, default=defaults.spatial_size,
-                       help="0 disables spatial features")
+                       help="side of the spatial features, 0 disables them (default %(default)s)")
     train.add_argument("--hist-bins", type=int, default=defaults.hist_bins,
-                       help="0 disables colour histograms")
+                       help="colour histogram bins, 0 disables them (default %(default)s)")
     train.add_argument("--no-hog", action="store_true", help="disable HOG features")
     train.add_argument("--C", type=float, nargs="+",
                        help=f"LinearSVC regularisation; several values (or --cv) are "
@@ -55,7 +62,7 @@ def add_train_parser(subparsers):
     train.add_argument("--source-holdout", action="store_true",
                        help="also hold out each source (GTI, KITTI, Extras) in turn and report "
                             "its accuracy (one more fit per source)")
-    train.add_argument("--folds", type=int, default=5, help="leak-free split: contiguous folds")
+    train.add_argument("--folds", type=int, default=5, help="leak-free split: contiguous folds (default %(default)s)")
     train.add_argument("--extra-negatives", nargs="+", metavar="DIR",
                        help="more folders of non-vehicle crops")
     train.set_defaults(handler=cmd_train)

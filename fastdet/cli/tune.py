@@ -20,7 +20,7 @@ def add_tune_parser(subparsers):
     tune.add_argument("sources", nargs="+", metavar="SOURCE", help="videos and/or images")
     add_annotation_options(tune, "tune on")
     tune.add_argument("--out", metavar="CONFIG.toml", help="write the best thresholds as TOML")
-    tune.add_argument("--top", type=int, default=10, help="rows of the table to print")
+    tune.add_argument("--top", type=int, default=10, help="rows of the table to print (default %(default)s)")
     tune.add_argument("--model", metavar="M", help="model file (default: bundled)")
     tune.add_argument("--config", metavar="C", help="TOML config with the scales and box filters")
     tune.add_argument("--jitter", type=float, nargs="+", default=(), metavar="ROWS",
