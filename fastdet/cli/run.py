@@ -73,7 +73,7 @@ def add_run_parser(subparsers):
                      help="damaged input (cut short, undecodable data, frames decoded with "
                           "errors) is an error; by default it is processed as far as the "
                           "decoder can, with a warning")
-    run.add_argument("--quiet", "-q", action="store_true", help="no progress bar or notices")
+    run.add_argument("--quiet", "-q", action="store_true", help="no progress bar or notices (the summary line stays)")
     run.add_argument("--debug-view", action="store_true",
                      help="draw the live heat map and per-frame timings into the output video")
     run.set_defaults(handler=cmd_run)
