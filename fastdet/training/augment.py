@@ -23,10 +23,14 @@ stays close to the original.
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from ..errors import ConfigError
 
 #: Range of the random scale of a jittered training copy.
 JITTER_SCALE = (0.8, 1.2)
@@ -72,10 +76,49 @@ class Photometric:
     jpeg: tuple = (30, 90)
     probability: float = 0.5
 
+    def __post_init__(self):
+        # Checked here, before any crop is read: brightness=(1,) failed in the middle
+        # of the augmentation with an IndexError, probability="a" with NumPy's message,
+        # and a reversed or negative range drew from it as given.
+        for name, low, high in (("brightness", 0, None), ("contrast", 0, None),
+                                ("blur", 0, None), ("resolution", 1, None), ("jpeg", 0, 100)):
+            span = getattr(self, name)
+            if span is None:
+                continue
+            if not (isinstance(span, (tuple, list)) and len(span) == 2
+                    and all(_is_real(v) for v in span)):
+                raise ConfigError(f"photometric.{name} must be a (low, high) pair of numbers "
+                                  f"or None, got {span!r}")
+            if not (low <= span[0] <= span[1] and (high is None or span[1] <= high)):
+                limits = f">= {low}" if high is None else f"within {low}-{high}"
+                raise ConfigError(f"photometric.{name} must be low <= high, {limits}, "
+                                  f"got {span!r}")
+            object.__setattr__(self, name, tuple(_plain(v) for v in span))
+        if self.temperature is not None and not (_is_real(self.temperature)
+                                                 and 0 <= self.temperature <= 1):
+            raise ConfigError(f"photometric.temperature must be a number in 0-1 or None, "
+                              f"got {self.temperature!r}")
+        if not (_is_real(self.probability) and 0 <= self.probability <= 1):
+            raise ConfigError(f"photometric.probability must be a number in 0-1, "
+                              f"got {self.probability!r}")
+        # Plain Python numbers: the settings go into a model's report, which is JSON.
+        for name in ("temperature", "probability"):
+            object.__setattr__(self, name, _plain(getattr(self, name)))
+
     def to_dict(self):
         """The settings as plain JSON-ready values (for a model's training report)."""
         return {name: list(value) if isinstance(value, tuple) else value
                 for name, value in dataclasses.asdict(self).items()}
+
+
+def _is_real(value):
+    """A finite real number (bools are not numbers here; NumPy's are)."""
+    return (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+            and math.isfinite(value))
+
+
+def _plain(value):
+    return value.item() if isinstance(value, np.generic) else value
 
 
 def jitter_crops(crops, seed=0, scale=JITTER_SCALE, shift=JITTER_SHIFT, photometric=None):

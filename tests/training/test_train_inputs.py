@@ -179,3 +179,36 @@ def test_mine_keeps_the_crops_of_two_sources_of_one_name(tmp_path):
     with pytest.raises(InputError, match="b.png is given twice as a source"):
         mine(detector, [pairs[0], pairs[0]], None, tmp_path / "twice")
     assert not (tmp_path / "twice").exists()
+
+
+@pytest.mark.parametrize("settings, message", [
+    ({"brightness": (1,)}, r"photometric\.brightness must be a \(low, high\) pair"),
+    ({"probability": "a"}, r"photometric\.probability must be a number in 0-1"),
+    ({"probability": True}, r"photometric\.probability must be a number in 0-1"),
+    ({"contrast": (1.2, 0.4)}, r"photometric\.contrast must be low <= high"),
+    ({"jpeg": (30, 101)}, r"photometric\.jpeg must be low <= high, within 0-100"),
+    ({"resolution": (0, 48)}, r"photometric\.resolution must be low <= high, >= 1"),
+    ({"blur": (float("nan"), 1.0)}, r"photometric\.blur must be a \(low, high\) pair"),
+    ({"temperature": 2.0}, r"photometric\.temperature must be a number in 0-1"),
+])
+def test_photometric_settings_are_checked_when_made(settings, message):
+    """brightness=(1,) failed mid-augmentation with an IndexError, probability='a' with
+    NumPy's message, and a reversed range was drawn from as given."""
+    from fastdet.errors import ConfigError
+    from fastdet.training.augment import Photometric
+
+    with pytest.raises(ConfigError, match=message):
+        Photometric(**settings)
+
+
+def test_photometric_settings_of_numpy_numbers_go_into_a_json_report():
+    import json
+
+    import numpy as np
+
+    from fastdet.training.augment import Photometric
+
+    settings = Photometric(brightness=[np.float32(0.5), 1.5], probability=np.float64(0.25),
+                           blur=None)
+    assert json.loads(json.dumps(settings.to_dict())) == {
+        **Photometric().to_dict(), "brightness": [0.5, 1.5], "probability": 0.25, "blur": None}
