@@ -256,19 +256,31 @@ def _parse(handle, name):
     if not isinstance(metadata, dict) or metadata.get("format") != FORMAT_NAME:
         raise ModelError(f"{name} is not a fastdet model")
     version = metadata.get("format_version")
-    if version != FORMAT_VERSION:
+    # Types too: true and 1.0 compare equal to 1 (and 64.0 to 64) in Python, and a file
+    # that spells them so was not written by fastdet.
+    if not _is_json_int(version) or version != FORMAT_VERSION:
         raise ModelError(f"{name} has model format version {version!r}; "
                          f"this fastdet reads version {FORMAT_VERSION}")
-    if metadata.get("window") != WINDOW:
+    if not _is_json_int(metadata.get("window")) or metadata.get("window") != WINDOW:
         raise ModelError(f"{name} was trained on {metadata.get('window')!r}-pixel windows; "
                          f"fastdet uses {WINDOW}")
     try:
         options = FeatureOptions.from_dict(metadata["feature_options"])
-        bias = float(metadata["bias"])
-        length = int(metadata["feature_length"])
-        digest = str(metadata["weights_sha256"])
+        bias, length, digest = (metadata["bias"], metadata["feature_length"],
+                                metadata["weights_sha256"])
     except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise ModelError(f"{name} has invalid metadata: {exc}") from None
+    # A JSON number, an integer and a string, as fastdet writes them: float() read the
+    # string "1.5" and true as a bias, int() cut a length of 8460.7 to 8460.
+    if isinstance(bias, bool) or not isinstance(bias, (int, float)):
+        raise ModelError(f"{name} has invalid metadata: bias must be a number, got {bias!r}")
+    if not _is_json_int(length):
+        raise ModelError(f"{name} has invalid metadata: feature_length must be an integer, "
+                         f"got {length!r}")
+    if not isinstance(digest, str):
+        raise ModelError(f"{name} has invalid metadata: weights_sha256 must be a string, "
+                         f"got {digest!r}")
+    bias = float(bias)
     if weights.dtype != np.float32 or weights.shape != (length,):
         raise ModelError(f"{name} has weights of {weights.dtype} {weights.shape}, "
                          f"metadata says float32 ({length},)")
@@ -283,3 +295,8 @@ def _parse(handle, name):
                      report=report if isinstance(report, dict) else {})
     except ModelError as exc:  # weights of the wrong length or not finite: name the file
         raise ModelError(f"{name}: {exc}") from None
+
+
+def _is_json_int(value):
+    """An integer as JSON holds it (``true`` and ``1.0`` are not)."""
+    return isinstance(value, int) and not isinstance(value, bool)

@@ -522,3 +522,21 @@ def test_a_device_is_not_a_missing_file():
     """``/dev/null`` exists: it was reported "model file not found"."""
     with pytest.raises(ModelError, match="not a regular file"):
         load_model("/dev/null")
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("bias", "0.5", "bias must be a number"),               # float() read the string
+    ("bias", True, "bias must be a number"),
+    ("feature_length", 8460.7, "feature_length must be an integer"),   # int() cut it
+    ("feature_length", "8460", "feature_length must be an integer"),
+    ("weights_sha256", 12, "weights_sha256 must be a string"),
+    ("format_version", True, "model format version True"),  # True == 1 in Python
+    ("format_version", 1.0, "model format version 1.0"),
+    ("window", 64.0, "64.0-pixel windows"),
+])
+def test_metadata_of_another_json_type_is_refused(saved, tmp_path, field, value, message):
+    """Metadata fastdet does not write was coerced: a bias of "0.5", a length of 8460.7."""
+    path, _ = saved
+    bad = rewrite_metadata(path, tmp_path, lambda metadata: metadata.update({field: value}))
+    with pytest.raises(ModelError, match=message):
+        load_model(bad)
