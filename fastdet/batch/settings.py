@@ -23,7 +23,7 @@ from ..video.codecs import DEFAULT_CODEC, DEFAULT_CRF, DEFAULT_PRESET
 from ..video.config import TrackConfig, load_track_config
 from ..video.detection_files import FORMATS
 from ..video.sink import check_encoder, refuse_encoder_options_without_video
-from ..video.stages import MAX_THREADS
+from ..video.source import MAX_THREADS
 
 #: ``BatchSettings.encoder`` when no --codec, --crf or --preset is given.
 DEFAULT_ENCODER = ("h264", None, None)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..detector.plain import plain_numbers
 from ..errors import ConfigError
 
 #: Range of the random scale of a jittered training copy.
@@ -77,6 +78,8 @@ class Photometric:
     probability: float = 0.5
 
     def __post_init__(self):
+        # Plain Python numbers: the settings go into a model's report, which is JSON.
+        plain_numbers(self)
         # Checked here, before any crop is read: brightness=(1,) failed in the middle
         # of the augmentation with an IndexError, probability="a" with NumPy's message,
         # and a reversed or negative range drew from it as given.
@@ -93,7 +96,7 @@ class Photometric:
                 limits = f">= {low}" if high is None else f"within {low}-{high}"
                 raise ConfigError(f"photometric.{name} must be low <= high, {limits}, "
                                   f"got {span!r}")
-            object.__setattr__(self, name, tuple(_plain(v) for v in span))
+            object.__setattr__(self, name, tuple(span))
         if self.temperature is not None and not (_is_real(self.temperature)
                                                  and 0 <= self.temperature <= 1):
             raise ConfigError(f"photometric.temperature must be a number in 0-1 or None, "
@@ -101,9 +104,6 @@ class Photometric:
         if not (_is_real(self.probability) and 0 <= self.probability <= 1):
             raise ConfigError(f"photometric.probability must be a number in 0-1, "
                               f"got {self.probability!r}")
-        # Plain Python numbers: the settings go into a model's report, which is JSON.
-        for name in ("temperature", "probability"):
-            object.__setattr__(self, name, _plain(getattr(self, name)))
 
     def to_dict(self):
         """The settings as plain JSON-ready values (for a model's training report)."""
@@ -115,10 +115,6 @@ def _is_real(value):
     """A finite real number (bools are not numbers here; NumPy's are)."""
     return (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
             and math.isfinite(value))
-
-
-def _plain(value):
-    return value.item() if isinstance(value, np.generic) else value
 
 
 def jitter_crops(crops, seed=0, scale=JITTER_SCALE, shift=JITTER_SHIFT, photometric=None):

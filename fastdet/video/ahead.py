@@ -24,15 +24,16 @@ import threading
 import weakref
 
 from ..detector.detector import Detector
+from .source import MAX_THREADS
 
 #: Frames looked ahead per frame to search at most: a search period
 #: (``every``) longer than this scores fewer frames at once.
 MAX_PERIOD = 8
 
-#: Most frames scored at once (as ``--threads``,
-#: :data:`fastdet.video.stages.MAX_THREADS`): each is a detector and a thread,
-#: and the look-ahead holds about ``2 * workers`` frames to search.
-MAX_WORKERS = 256
+#: Most frames scored at once (:data:`fastdet.video.source.MAX_THREADS`, as
+#: ``--threads``): each is a detector and a thread, and the look-ahead holds
+#: about ``2 * workers`` frames to search.
+MAX_WORKERS = MAX_THREADS
 
 #: Frames to search queued per thread scoring them, besides the calling
 #: thread's next one.  The calling thread queues frames only between the

@@ -45,8 +45,11 @@ LIVE_SCHEMES = frozenset({"udp", "rtp", "rtsp", "rtsps", "rtmp", "srt", "tcp"})
 NETWORK_SCHEMES = LIVE_SCHEMES | {"http", "https"}
 #: Seconds to wait for a network source or camera to connect, and for each read.
 DEFAULT_TIMEOUT = 10.0
-#: Most decoder threads (``--threads`` is bounded alike, :data:`fastdet.video.stages.MAX_THREADS`).
-MAX_DECODER_THREADS = 256
+#: Most threads any part of a run is given: decoder threads here, a run's ``--threads``
+#: (:func:`fastdet.video.stages.run_cores`, a batch's too) and frames scored at once
+#: (:mod:`fastdet.video.ahead`).  Beyond what any decoder, x264 (128 at most) or
+#: frame-level detection can use.
+MAX_THREADS = 256
 
 
 def whole_frame_number(value, option):
@@ -288,9 +291,9 @@ class VideoSource:
             raise InputError(f"--timeout must be a positive number of seconds, got {timeout!r}")
         if threads is not None and (isinstance(threads, bool)
                                     or not isinstance(threads, numbers.Integral)
-                                    or not 1 <= threads <= MAX_DECODER_THREADS):
+                                    or not 1 <= threads <= MAX_THREADS):
             # int() took "x" as a bare ValueError, truncated 1.5 and passed -1 to FFmpeg.
-            raise InputError(f"decoder threads must be a whole number 1-{MAX_DECODER_THREADS} "
+            raise InputError(f"decoder threads must be a whole number 1-{MAX_THREADS} "
                              f"(None: FFmpeg's choice), got {threads!r}")
         url, fmt, self.kind = _source_kind(source)
         self.url = url

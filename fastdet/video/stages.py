@@ -41,6 +41,7 @@ from ..errors import InputError
 from ..viz.draw import debug_frame, draw_detections_yuv420
 from .ahead import process_ahead
 from .frame_arrays import FrameConverter, plane_view
+from .source import MAX_THREADS
 from .standard_output import ReaderGone
 
 #: Frames each queue holds: enough to ride out one slow frame, few enough for flat memory.
@@ -56,9 +57,6 @@ POLL_SECONDS = 0.1
 #: Marks the end of the frame stream.
 END = object()
 
-#: Most cores a run is planned for (``--threads``): beyond what any decoder, x264
-#: (128 threads at most) or frame-level detection can use.
-MAX_THREADS = 256
 #: Per-frame CPU milliseconds of each kind of work on one 1280x720 frame on one core, as
 #: measured on the development machine (README, "Video"); only their ratios matter.
 _DECODE_MS, _SEARCH_MS, _ENCODE_MS = 3.7, 4.5, 4.5
