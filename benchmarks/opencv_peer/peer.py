@@ -36,7 +36,7 @@ Two searches are timed per frame, each the median of ``repeat`` calls:
 Protocol (one JSON object per line)::
 
     python peer.py JOB.json
-    -> {"opencv_version": ..., "python": ..., "detector": {...},
+    -> {"opencv_version": ..., "python": ..., "cpu_features": ..., "detector": {...},
         "windows_per_frame": {"same_windows": N, "native": M}}      once ready
     <- {"frame": I, "threads": T, "repeat": R}                       per request
     -> {"frame": I, "threads": T, "seconds": {mode: median}, "hits": {mode: n}}
@@ -247,6 +247,7 @@ def prepare(job):
         for pipeline in modes.values():
             pipeline(frames[0])
     ready = {"opencv_version": cv2.__version__, "python": sys.version.split()[0],
+             "cpu_features": cv2.getCPUFeaturesLine(),
              "detector": train_info,
              "windows_per_frame": {mode: pipeline.windows(frames[0])
                                    for mode, pipeline in modes.items()}}

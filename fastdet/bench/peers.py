@@ -29,6 +29,11 @@ from .timing import PipelineResult
 #: Environment variable naming the OpenCV peer's virtual environment.
 OPENCV_PEER_ENV = "FASTDET_OPENCV_PEER"
 
+#: OpenCV's run-time dispatch levels (its names in ``OPENCV_CPU_DISABLE`` and
+#: ``cv2.getCPUFeaturesLine()``) above its x86 baseline, lowest first.
+OPENCV_DISPATCH_LEVELS = ("SSE4.1", "SSE4.2", "AVX", "FP16", "AVX2", "AVX512-SKX")
+
+
 #: ``winStride`` of the OpenCV peer's native ``detectMultiScale`` search, in
 #: pixels of the 64-pixel window (75% overlap: the densest overlap fastdet's
 #: default scales use).
@@ -77,6 +82,36 @@ def cache_dir():
 
 
 # -- OpenCV peer ---------------------------------------------------------------
+def opencv_levels_above_build():
+    """OpenCV's dispatch levels above the vector paths fastdet's kernels are compiled for.
+
+    ``NUMBA_CPU_NAME=haswell NUMBA_CPU_FEATURES=`` on an AVX-512 machine builds
+    the kernels every AVX2-only CPU runs; the peer then leaves out
+    OpenCV's AVX-512 code too, so the ratio is the one such a CPU would show.
+    With AVX-512 kernels nothing is left out; with neither AVX2 nor AVX-512
+    (the SSE paths) every level above OpenCV's SSE3 baseline is.  Levels the
+    CPU lacks are named as well, which OpenCV ignores.
+    """
+    from ..kernels._llvm import HAVE_AVX2, HAVE_AVX512F
+
+    if HAVE_AVX512F:
+        return ()
+    if HAVE_AVX2:
+        return ("AVX512-SKX",)
+    return OPENCV_DISPATCH_LEVELS
+
+
+def opencv_peer_environment(environ=None):
+    """The peer's environment: ``environ`` (default ``os.environ``) with
+    :func:`opencv_levels_above_build` added to ``OPENCV_CPU_DISABLE``."""
+    environ = dict(os.environ if environ is None else environ)
+    levels = opencv_levels_above_build()
+    if levels:
+        given = [name for name in environ.get("OPENCV_CPU_DISABLE", "").split(",") if name]
+        environ["OPENCV_CPU_DISABLE"] = ",".join(given + [n for n in levels if n not in given])
+    return environ
+
+
 def native_search(plans):
     """The OpenCV peer's ``detectMultiScale`` settings comparable to fastdet's plans.
 
@@ -196,7 +231,7 @@ class OpenCVPeer:
         self._stderr = open(folder / "stderr.txt", "w+")  # closed in close()
         self._process = subprocess.Popen(
             [str(python), str(self.peer_script), str(folder / "job.json")], cwd=folder,
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, text=True,
+            env=opencv_peer_environment(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, text=True,
             bufsize=1)
         self._reader = threading.Thread(target=self._read_replies, args=(self._process.stdout,),
                                         name="fastdet-opencv-peer", daemon=True)

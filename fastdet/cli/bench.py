@@ -230,6 +230,10 @@ def cmd_bench(args):
         print(f"OpenCV {run.opencv['opencv_version']} (own environment): grey HOG, 1764 "
               f"features per window, linear SVM on {info['crops']} crops ({trained}); "
               f"fastdet scores {model.layout.length} features per window.")
+        if run.opencv.get("cpu_features"):
+            print(f"OpenCV's CPU dispatch: {run.opencv['cpu_features']} (* = built for "
+                  "dispatch, ? = left out: levels above fastdet's kernels' build, so an "
+                  "AVX2 build is compared with OpenCV's AVX2 code)")
     for note in run.notes:
         print(f"note: {note}")
     print("\n## fastdet stage split\n")

@@ -18,7 +18,9 @@ import numpy as np
 import pytest
 
 from fastdet.bench.latency import run_benchmark
-from fastdet.bench.peers import OpenCVPeer, benchmarks_dir
+from fastdet.bench.peers import (OPENCV_DISPATCH_LEVELS, OpenCVPeer, benchmarks_dir,
+                                 opencv_levels_above_build, opencv_peer_environment)
+from fastdet.kernels import _llvm
 from fastdet.bench.timing import time_fastdet_in_turn
 from fastdet.detector.config import DetectorConfig
 from fastdet.detector.detector import Detector
@@ -44,6 +46,10 @@ threads = []
 
 def setNumThreads(count):
     threads.append(count)
+
+
+def getCPUFeaturesLine():
+    return "left out: " + os.environ.get("OPENCV_CPU_DISABLE", "")
 
 
 def imread(path, flags=None):
@@ -211,6 +217,41 @@ def test_a_peer_that_does_not_answer_is_stopped(model, peer_log, monkeypatch):
             peer.time_frame(1)
         assert process.wait(timeout=5) == -signal.SIGKILL  # not left sleeping
     assert [len(r.seconds) for r in peer.results()] == [1, 1]
+
+
+@pytest.mark.parametrize("avx2, avx512, left_out", [
+    (True, True, ()),
+    (True, False, ("AVX512-SKX",)),
+    (False, False, OPENCV_DISPATCH_LEVELS),
+])
+def test_opencv_leaves_out_the_levels_above_the_kernels_build(monkeypatch, avx2, avx512,
+                                                              left_out):
+    monkeypatch.setattr(_llvm, "HAVE_AVX2", avx2)
+    monkeypatch.setattr(_llvm, "HAVE_AVX512F", avx512)
+    assert opencv_levels_above_build() == left_out
+
+
+def test_the_peer_environment_keeps_what_the_user_left_out(monkeypatch):
+    monkeypatch.setattr(_llvm, "HAVE_AVX2", True)
+    monkeypatch.setattr(_llvm, "HAVE_AVX512F", False)
+    environ = opencv_peer_environment({"OPENCV_CPU_DISABLE": "FP16,AVX512-SKX", "HOME": "/h"})
+    assert environ == {"OPENCV_CPU_DISABLE": "FP16,AVX512-SKX", "HOME": "/h"}
+    assert opencv_peer_environment({})["OPENCV_CPU_DISABLE"] == "AVX512-SKX"
+    monkeypatch.setattr(_llvm, "HAVE_AVX512F", True)
+    assert "OPENCV_CPU_DISABLE" not in opencv_peer_environment({"HOME": "/h"})
+
+
+def test_an_avx2_build_is_timed_against_opencv_without_its_avx512_code(model, peer_log,
+                                                                         monkeypatch):
+    monkeypatch.delenv("OPENCV_CPU_DISABLE", raising=False)
+    monkeypatch.setattr(_llvm, "HAVE_AVX2", True)
+    monkeypatch.setattr(_llvm, "HAVE_AVX512F", False)
+    plans = plan_scales(DetectorConfig(), model.options, (320, 180))
+    with OpenCVPeer(numbered_frames(1), plans, threads=(1,), repeat=1) as peer:
+        assert peer.report["cpu_features"] == "left out: AVX512-SKX"
+    monkeypatch.setattr(_llvm, "HAVE_AVX512F", True)
+    with OpenCVPeer(numbered_frames(1), plans, threads=(1,), repeat=1) as peer:
+        assert peer.report["cpu_features"] == "left out: "
 
 
 def test_a_missing_peer_environment_is_an_input_error(model, tmp_path, monkeypatch):
