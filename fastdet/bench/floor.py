@@ -135,6 +135,6 @@ def format_floor(estimate):
         f"- floor: {e['floor_ms']:.2f} ms per frame on one core",
     ]
     if "distance" in e:
-        lines.append(f"- fastdet 1 thread: {e['fastdet_ms']:.2f} ms = {e['distance']:.0f}x "
+        lines.append(f"- fastdet 1 thread: {e['fastdet_ms']:.2f} ms = {e['distance']:.1f}x "
                      "the floor")
     return "\n".join(lines)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from fastdet.bench.floor import floor_estimate
+from fastdet.bench.floor import floor_estimate, format_floor
 from fastdet.bench.latency import (BenchmarkRun, format_stages, format_table, format_threads,
                                    run_benchmark)
 from fastdet.bench.peers import native_search
@@ -139,6 +139,17 @@ def test_floor_counts_votes_and_multiply_adds(model):
     assert estimate["macs"] == sum(p.n_windows for p in plans) * FeatureLayout(
         model.options).length
     assert estimate["distance"] == pytest.approx(30.0 / estimate["floor_ms"])
+
+
+def test_the_floor_line_tells_2_4x_from_2_6x():
+    # Rounded to whole times, both read "3x": the start-up issue's line is 2.5x.
+    estimate = {"scaled_pixels": 1e6, "channels": 3, "votes": 3e6, "clock_hz": 3e9,
+                "nominal_hz": None, "vote_ms": 1.0, "windows": 800, "feature_length": 8460,
+                "macs": 6.8e6, "mac_rate": 5e10, "mac_ms": 0.14, "floor_ms": 1.0}
+    for fastdet_ms, shown in ((2.44, "2.4x"), (2.56, "2.6x")):
+        line = format_floor(dict(estimate, fastdet_ms=fastdet_ms,
+                                 distance=fastdet_ms)).splitlines()[-1]
+        assert line == f"- fastdet 1 thread: {fastdet_ms:.2f} ms = {shown} the floor"
 
 
 def test_scaling_table_and_plot(tmp_path):
