@@ -86,10 +86,10 @@ class CellBlockOrders:
     with its masked adds as AND-then-add (or AVX-512's masked add) and as
     fused multiply-adds of 0.0 / 1.0.
 
-    The kernel takes two passes without AVX-512 and one with it, and fuses the
-    adds where it has FMA but not AVX-512; this times every combination on the
-    machine at hand, so that the choices can be checked on every CPU (all give
-    the same sums, bit for bit)."""
+    The kernel takes two passes on every CPU, and fuses the adds where it has
+    FMA but not AVX-512; this times every combination on the machine at hand,
+    so that the choices can be checked on every CPU (all give the same sums,
+    bit for bit)."""
 
     params = (["1280x720"], [False, True], [False, True])
     param_names = ("frame_size", "two_pass", "fused_add")

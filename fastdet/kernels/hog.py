@@ -752,10 +752,15 @@ _MASK_THEN_ADD = not HAVE_AVX512F
 #: block's masked_add): without AVX-512's masked add, where there is FMA.
 _FUSED_ADD = _MASK_THEN_ADD and HAVE_FMA
 #: Gradients of the whole group first, then the sums (see the block's
-#: two_pass): where there is no AVX-512.  With AVX-512 the two orders took the
-#: same time on an AMD Zen 4 (asv CellBlockOrders, per-round ratio 1.00-1.01)
-#: and llvm-mca predicts the same for Intel's cores, so one pass.
-_TWO_PASS = not HAVE_AVX512F
+#: two_pass), on every CPU.  Without AVX-512 two passes took 0.72-0.80x the
+#: time of one (Zen 3, Zen 4 with AVX-512 hidden, and the AVX2 build on a
+#: Zen 5).  With AVX-512 they took 0.78-0.80x on an AMD Zen 5 (CPU family 26,
+#: model 2; asv CellBlockOrders alternating in one process, medians of the
+#: per-round ratios over 60-100 rounds, 2026-12-04) and the same time on a
+#: Zen 4 (per-round ratio 1.00-1.01, two passes' minima lower); llvm-mca
+#: predicts no change for Intel's cores, whose schedulers are shared by all
+#: ports.  Both orders give the same sums, bit for bit.
+_TWO_PASS = True
 
 
 def _fast_thresholds(nbins):
