@@ -52,8 +52,12 @@ from .views import flat as flat_view
 #: take turns per window (latency: one running sum would wait on its own adds).
 _DOT_LANES = 16
 _DOT_CHAINS = 4
-#: Windows of a row dotted at once, sharing each weight vector loaded.
-_DOT_WINDOWS = 4
+#: Windows of a row dotted at once, sharing each weight vector loaded: four
+#: with AVX-512; three where a 16-lane vector is two registers (AVX2's 16
+#: hold four windows' accumulators only by spilling them: on an AMD Zen 5 the
+#: AVX2 build's spatial rows took 0.88x the time with three, 42 against 48
+#: us for a 4 x 77 grid).  Any count gives the same bits.
+_DOT_WINDOWS = 4 if HAVE_AVX512F else 3
 
 
 def _row_window_dots(windows, fixed_length=None):
@@ -310,23 +314,30 @@ def add_hog_scores_from_cells(cells, cells_per_block, norm, weights, step_cells,
 _LANES = 16
 
 
-def _window_dots(rows):
+def _window_dots(rows, chunks=1):
     """An intrinsic ``dots(weights, w_base, w_step, blocks, stride, offset, second,
     channels, per_channel, acc, a0, a_step)`` adding the dot products of one
-    block row with the weights of ``rows`` window rows, _LANES windows each.
+    block row with the weights of ``rows`` window rows, ``chunks`` times
+    _LANES windows each.
 
-    Feature ``f`` of the block row is ``blocks[f * stride + offset + lane]``.
-    Window row ``i < rows`` weighs it by ``weights[w_base + i * w_step + f]``
-    and adds its sum to ``acc[a0 + i * a_step + lane]`` (steps may be
-    negative).  Features come in ``channels`` groups of ``per_channel``, each
-    group's sum multiplied by ``second[c * stride + offset + lane]`` (L2-Hys's
-    second normalisation; ones for the other norms).
+    Feature ``f`` of the block row is ``blocks[f * stride + offset + lane]``
+    for the first _LANES windows, ``offset + _LANES + lane`` for the next, and
+    so on.  Window row ``i < rows`` weighs it by ``weights[w_base + i * w_step
+    + f]`` and adds its sum to ``acc[a0 + i * a_step + lane]`` (the next
+    _LANES windows: ``+ _LANES``; steps may be negative).  Features come in
+    ``channels`` groups of ``per_channel``, each group's sum multiplied by
+    ``second[c * stride + offset + lane]`` (L2-Hys's second normalisation;
+    ones for the other norms).
 
     The windows are the vector lanes, so there are no horizontal sums, and
     every block vector loaded serves all the window rows containing the block
     row: the loads, not the FMAs, bound this loop.  Numba's loop vectoriser
     would only vectorise along windows with a scalar tail (rows of 12 to 52
-    windows run mostly in it), and its SLP vectoriser is off.
+    windows run mostly in it), and its SLP vectoriser is off.  Each window's
+    sums are the same for any ``chunks``: more chunks only put more
+    independent chains of multiply-adds side by side, for block rows that
+    only one or two window rows contain (two chains each would otherwise
+    wait on their own adds).
     """
 
     def codegen(context, builder, signature, args):
@@ -341,15 +352,21 @@ def _window_dots(rows):
         zero = ir.Constant(vector, [0.0] * _LANES)
         w_bases = [builder.add(w_base, builder.mul(w_step, ir.Constant(i64, i)))
                    for i in range(rows)]
+        shifts = [ir.Constant(i64, chunk * _LANES) for chunk in range(chunks)]
+        per_chain = rows * chunks
 
         def add_feature(feature, sums):
-            x = load_vector(builder, blocks, builder.add(builder.mul(feature, stride), offset),
-                            vector)
-            out = []
-            for w_row, total in zip(w_bases, sums):
+            # sums[chunk * rows + i]: window row i of that chunk.
+            at = builder.add(builder.mul(feature, stride), offset)
+            xs = [load_vector(builder, blocks, builder.add(at, shift), vector)
+                  for shift in shifts]
+            out = list(sums)
+            for i, w_row in enumerate(w_bases):
                 weight = builder.load(builder.gep(weights, [builder.add(w_row, feature)]))
                 weight = splat(builder, weight, vector)
-                out.append(fused_multiply_add(builder, weight, x, total))
+                for chunk, x in enumerate(xs):
+                    slot = chunk * rows + i
+                    out[slot] = fused_multiply_add(builder, weight, x, sums[slot])
             return out
 
         def channel(c, totals):
@@ -357,27 +374,30 @@ def _window_dots(rows):
             two = ir.Constant(i64, 2)
 
             # Two chains per window row keep enough FMAs in flight for one
-            # row; the same two for every ``rows``, so a window's sum does not
-            # depend on how its row was grouped.
+            # row; the same two for every ``rows`` and ``chunks``, so a
+            # window's sum does not depend on how its row was grouped.
             def pair(g, sums):
                 even = builder.add(first, builder.mul(g, two))
-                return (add_feature(even, sums[:rows])
-                        + add_feature(builder.add(even, ir.Constant(i64, 1)), sums[rows:]))
+                return (add_feature(even, sums[:per_chain])
+                        + add_feature(builder.add(even, ir.Constant(i64, 1)), sums[per_chain:]))
 
-            sums = counted_loop(builder, builder.sdiv(per_channel, two), [zero] * (2 * rows),
-                                 pair)
-            sums = [builder.fadd(a, b) for a, b in zip(sums[:rows], sums[rows:])]
+            sums = counted_loop(builder, builder.sdiv(per_channel, two),
+                                [zero] * (2 * per_chain), pair)
+            sums = [builder.fadd(a, b) for a, b in zip(sums[:per_chain], sums[per_chain:])]
             last = builder.add(first, builder.sub(per_channel, ir.Constant(i64, 1)))
             sums = counted_loop(builder, builder.srem(per_channel, two), sums,
-                                 lambda k, partial: add_feature(last, partial))
-            scale = load_vector(builder, second,
-                                builder.add(builder.mul(c, stride), offset), vector)
-            return [fused_multiply_add(builder, part, scale, total)
-                    for part, total in zip(sums, totals)]
+                                lambda k, partial: add_feature(last, partial))
+            at = builder.add(builder.mul(c, stride), offset)
+            scales = [load_vector(builder, second, builder.add(at, shift), vector)
+                      for shift in shifts]
+            return [fused_multiply_add(builder, part, scales[slot // rows], total)
+                    for slot, (part, total) in enumerate(zip(sums, totals))]
 
-        totals = counted_loop(builder, channels, [zero] * rows, channel)
-        for i, total in enumerate(totals):
-            index = builder.add(a0, builder.mul(a_step, ir.Constant(i64, i)))
+        totals = counted_loop(builder, channels, [zero] * per_chain, channel)
+        for slot, total in enumerate(totals):
+            chunk, i = divmod(slot, rows)
+            index = builder.add(builder.add(a0, builder.mul(a_step, ir.Constant(i64, i))),
+                                shifts[chunk])
             store_vector(builder, builder.fadd(load_vector(builder, acc, index, vector), total),
                          acc, index)
         return context.get_dummy_value()
@@ -387,7 +407,7 @@ def _window_dots(rows):
         return (types.void(weights, w_base, w_step, blocks, stride, offset, second, channels,
                            per_channel, acc, a0, a_step), codegen)
 
-    dots.__name__ = dots.__qualname__ = f"_window_dots_{rows}"
+    dots.__name__ = dots.__qualname__ = f"_window_dots_{rows}x{chunks}"
     return intrinsic(dots)
 
 
@@ -404,12 +424,19 @@ _window_dots_1 = _window_dots(1)
 _window_dots_2 = _window_dots(2)
 _window_dots_3 = _window_dots(3)
 _window_dots_4 = _window_dots(4)
+#: Chunks of _LANES windows dotted side by side where a block row has few
+#: window rows: as many as keep ``rows * chunks`` at _MAX_ROWS or below (the
+#: same registers as the widest grouping).
+_PAIRED_ROWS = _MAX_ROWS // 2
+_window_dots_1x2 = _window_dots(1, 2)
+_window_dots_2x2 = _window_dots(2, 2)
 
 
-def _normalise_blocks(norm_code):
+def _normalise_blocks(norm_code, copies=1):
     """An intrinsic ``normalise(cells, c_base, row_stride, bin_stride, k, cpb_y, cpb_x,
     nbins, energy, e_base, e_row_stride, p0, bias, hys_bias, normalised, n_base,
-    stride, second, s_base)`` normalising one channel of _LANES blocks of a block row.
+    stride, second, s_base)`` normalising one channel of ``copies * _LANES``
+    blocks of a block row.
 
     The block at position ``p0 + lane`` has cell ``(dy, dx)`` bin ``b`` at
     ``cells[c_base + dy * row_stride + b * bin_stride + dx * k + p0 + lane]``
@@ -422,6 +449,12 @@ def _normalise_blocks(norm_code):
     ``1 / sqrt(sum of squares + hys_bias)``, goes to ``second[s_base + p0 +
     lane]``.  Sums run in the order of a plain loop over (dy, dx) and then
     features, so the values equal a scalar loop's.
+
+    ``copies``: vectors of _LANES positions done side by side, each with its
+    own sums in the same order, so the values are the same for any ``copies``.
+    L2-Hys's sum of the clipped squares is one chain of dependent
+    multiply-adds per vector (36 for the default block); one vector at a time
+    it waits on that chain.
     """
 
     def codegen(context, builder, signature, args):
@@ -440,21 +473,25 @@ def _normalise_blocks(norm_code):
         zero = ir.Constant(vector, [0.0] * _LANES)
         one = ir.Constant(vector, [1.0] * _LANES)
         clip = ir.Constant(vector, [float(np.float32(0.2))] * _LANES)
+        shifts = [ir.Constant(p0.type, copy * _LANES) for copy in range(copies)]
 
         def energy_row(dy, sums):
             row = builder.add(builder.add(e_base, builder.mul(dy, e_row_stride)), p0)
 
             def cell(dx, sums):
                 start = builder.add(row, builder.mul(dx, k))
-                return [builder.fadd(sums[0], load_vector(builder, energy, start, vector))]
+                return [builder.fadd(total, load_vector(builder, energy,
+                                                        builder.add(start, shift), vector))
+                        for total, shift in zip(sums, shifts)]
 
             return counted_loop(builder, cpb_x, sums, cell)
 
-        total, = counted_loop(builder, cpb_y, [zero], energy_row)
-        norm = builder.fadd(total, bias)
-        if norm_code >= 2:
-            norm = builder.call(sqrt, [norm])
-        inv = builder.fdiv(one, norm)
+        inverses = []
+        for total in counted_loop(builder, cpb_y, [zero] * copies, energy_row):
+            norm = builder.fadd(total, bias)
+            if norm_code >= 2:
+                norm = builder.call(sqrt, [norm])
+            inverses.append(builder.fdiv(one, norm))
 
         def cell_row(dy, sums):
             row = builder.add(builder.add(c_base, builder.mul(dy, row_stride)), p0)
@@ -464,29 +501,34 @@ def _normalise_blocks(norm_code):
                 first = builder.mul(builder.add(builder.mul(dy, cpb_x), dx), nbins)
 
                 def feature(b, sums):
-                    value = builder.fmul(load_vector(
-                        builder, cells, builder.add(start, builder.mul(b, bin_stride)), vector),
-                        inv)
-                    if norm_code == 1:
-                        value = builder.call(sqrt, [value])
-                    elif norm_code == 3:
-                        value = builder.select(builder.fcmp_ordered("<", value, clip), value,
-                                               clip)
+                    at = builder.add(start, builder.mul(b, bin_stride))
                     f = builder.add(first, b)
-                    store_vector(builder, value, normalised,
-                                 builder.add(n_base, builder.add(builder.mul(f, stride), p0)))
-                    if norm_code != 3:
-                        return sums
-                    return [fused_multiply_add(builder, value, value, sums[0])]
+                    out_at = builder.add(n_base, builder.add(builder.mul(f, stride), p0))
+                    following = []
+                    for total, inv, shift in zip(sums, inverses, shifts):
+                        value = builder.fmul(load_vector(builder, cells, builder.add(at, shift),
+                                                         vector), inv)
+                        if norm_code == 1:
+                            value = builder.call(sqrt, [value])
+                        elif norm_code == 3:
+                            value = builder.select(builder.fcmp_ordered("<", value, clip), value,
+                                                   clip)
+                        store_vector(builder, value, normalised, builder.add(out_at, shift))
+                        following.append(fused_multiply_add(builder, value, value, total)
+                                         if norm_code == 3 else total)
+                    return following
 
                 return counted_loop(builder, nbins, sums, feature)
 
             return counted_loop(builder, cpb_x, sums, cell)
 
-        sum_sq, = counted_loop(builder, cpb_y, [zero], cell_row)
+        sums_sq = counted_loop(builder, cpb_y, [zero] * copies, cell_row)
         if norm_code == 3:
-            second_inv = builder.fdiv(one, builder.call(sqrt, [builder.fadd(sum_sq, hys_bias)]))
-            store_vector(builder, second_inv, second, builder.add(s_base, p0))
+            for sum_sq, shift in zip(sums_sq, shifts):
+                second_inv = builder.fdiv(one, builder.call(sqrt, [builder.fadd(sum_sq,
+                                                                                hys_bias)]))
+                store_vector(builder, second_inv, second,
+                             builder.add(builder.add(s_base, p0), shift))
         return context.get_dummy_value()
 
     def normalise(typingctx, cells, c_base, row_stride, bin_stride, k, cpb_y, cpb_x, nbins,
@@ -496,14 +538,19 @@ def _normalise_blocks(norm_code):
                            e_base, e_row_stride, p0, bias, hys_bias, normalised, n_base, stride,
                            second, s_base), codegen)
 
-    normalise.__name__ = normalise.__qualname__ = f"_normalise_blocks_{norm_code}"
+    normalise.__name__ = normalise.__qualname__ = f"_normalise_blocks_{norm_code}_{copies}"
     return intrinsic(normalise)
+
+
+#: Vectors of block positions L2-Hys normalises side by side (see _normalise_blocks).
+_HYS_COPIES = 2
 
 
 _normalise_l1 = _normalise_blocks(0)
 _normalise_l1_sqrt = _normalise_blocks(1)
 _normalise_l2 = _normalise_blocks(2)
 _normalise_l2_hys = _normalise_blocks(3)
+_normalise_l2_hys_side_by_side = _normalise_blocks(3, _HYS_COPIES)
 
 
 # No fastmath: contracted into FMAs where the CPU has them, the energies would
@@ -620,7 +667,16 @@ def _score_window_rows(wrapped, cells, per_phase, cpb_y, cpb_x, norm_code, eps, 
                 e_base = uint64((by * channels + c) * length)
                 n_base = uint64(c) * per_channel * stride
                 s_base = uint64(c) * stride
-                for p0 in range(uint64(0), stride, lanes):
+                p0 = uint64(0)
+                if norm_code is None or norm_code == 3:
+                    side_by_side = uint64(_HYS_COPIES) * lanes
+                    while p0 + side_by_side <= stride:
+                        _normalise_l2_hys_side_by_side(
+                            cells_flat, c_base, row_stride, uint64(length), k, uint64(cpb_y),
+                            uint64(cpb_x), uint64(nbins), energy, e_base, e_row_stride, p0,
+                            bias, eps_sq, normalised, n_base, stride, second, s_base)
+                        p0 += side_by_side
+                for p0 in range(p0, stride, lanes):
                     if norm_code is None or norm_code == 3:
                         _normalise_l2_hys(cells_flat, c_base, row_stride, uint64(length), k,
                                           uint64(cpb_y), uint64(cpb_x), uint64(nbins), energy,
@@ -651,7 +707,21 @@ def _score_window_rows(wrapped, cells, per_phase, cpb_y, cpb_x, norm_code, eps, 
                     count = min(_MAX_ROWS, last + 1 - group)
                     w_base = ((by - group * step) * n + s) * n_features
                     w_step = -step * n * n_features
-                    for chunk in range(chunks):
+                    chunk = 0
+                    if count <= _PAIRED_ROWS:
+                        while chunk + 2 <= chunks:
+                            a0 = (group - first_row) * row_len + chunk * _LANES
+                            at = offset + chunk * _LANES
+                            if count == 2:
+                                _window_dots_2x2(weights_flat, w_base, w_step, normalised,
+                                                 stride, at, second, channels, per_channel,
+                                                 scores, a0, row_len)
+                            else:
+                                _window_dots_1x2(weights_flat, w_base, w_step, normalised,
+                                                 stride, at, second, channels, per_channel,
+                                                 scores, a0, row_len)
+                            chunk += 2
+                    for chunk in range(chunk, chunks):
                         a0 = (group - first_row) * row_len + chunk * _LANES
                         at = offset + chunk * _LANES
                         if count == 4:
