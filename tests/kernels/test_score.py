@@ -4,6 +4,7 @@ slicing + ``np.dot`` / ``np.sum`` in float64 (``naive.py``)."""
 
 from __future__ import annotations
 
+import functools
 import sys
 from pathlib import Path
 
@@ -337,3 +338,113 @@ def test_colour_maps_rejects_non_colour_images():
         colour_maps(np.zeros((8, 8), np.uint8), None, 8, 2)
     with pytest.raises(ValueError, match="uint8"):
         colour_maps(np.zeros((8, 8, 3), np.float32), None, 8, 2)
+
+
+def test_the_spatial_rows_block_gives_the_same_bits_for_any_window_count():
+    """_DOT_WINDOWS differs by CPU (four with AVX-512, three with AVX2): a
+    window's sum must not depend on how many are dotted at once."""
+    from benchmarks.bench_kernels import spatial_grid_walk
+    from fastdet.kernels.score import SPATIAL_ROW
+
+    rng = np.random.default_rng(11)
+    image = rng.normal(size=(70, 61 * 3 + SPATIAL_ROW)).astype(np.float32)
+    weights = rng.normal(size=(32, SPATIAL_ROW)).astype(np.float32)
+    grids = []
+    for windows in (1, 3, 4):
+        out = np.zeros((5, 23), np.float32)
+        spatial_grid_walk(True, windows)(image, weights, 9, 6, out)
+        grids.append(out)
+    for grid in grids[1:]:
+        np.testing.assert_array_equal(grid, grids[0])
+
+
+@functools.lru_cache(maxsize=None)
+def _hog_dots_walk(rows, chunks):
+    """Dots of one block row with ``rows`` window rows, ``chunks`` vectors of
+    windows a call, over every vector of a row of ``stride`` positions."""
+    from numba import njit
+
+    from fastdet.kernels import score
+
+    dots = score._window_dots(rows, chunks)
+    lanes = score._LANES
+
+    @njit
+    def walk(weights, blocks, stride, second, channels, per_channel, acc):
+        for chunk in range(0, stride, lanes * chunks):
+            dots(weights, 0, channels * per_channel, blocks, stride, chunk, second, channels,
+                 per_channel, acc, chunk, stride)
+
+    return walk
+
+
+@pytest.mark.parametrize("rows", [1, 2])
+@pytest.mark.parametrize("per_channel", [36, 35])
+def test_window_dots_side_by_side_give_each_windows_bits(rows, per_channel):
+    """Two vectors of windows dotted side by side (the edge block rows' form)
+    add exactly what one vector at a time adds."""
+    channels, stride = 3, 64
+    rng = np.random.default_rng(rows * 100 + per_channel)
+    weights = rng.normal(size=rows * channels * per_channel).astype(np.float32)
+    blocks = rng.normal(size=channels * per_channel * stride + 32).astype(np.float32)
+    second = rng.random(channels * stride + 32).astype(np.float32)
+    start = rng.normal(size=rows * stride + 32).astype(np.float32)
+    sums = []
+    for chunks in (1, 2):
+        acc = start.copy()
+        _hog_dots_walk(rows, chunks)(weights, blocks, stride, second, channels, per_channel,
+                                     acc)
+        sums.append(acc)
+    np.testing.assert_array_equal(sums[1], sums[0])
+    # And they are the dot products (float64 reference, float32 tolerance).
+    for i in range(rows):
+        w = weights[i * channels * per_channel:(i + 1) * channels * per_channel]
+        feats = blocks[:channels * per_channel * stride].reshape(channels * per_channel,
+                                                                 stride).astype(np.float64)
+        per_c = (w.astype(np.float64)[:, None] * feats).reshape(channels, per_channel,
+                                                                stride).sum(axis=1)
+        expected = start[i * stride:(i + 1) * stride] + (
+            per_c * second[:channels * stride].reshape(channels, stride)).sum(axis=0)
+        np.testing.assert_allclose(sums[0][i * stride:(i + 1) * stride], expected,
+                                   rtol=1e-4, atol=1e-3)
+
+
+@functools.lru_cache(maxsize=None)
+def _normalise_walk(copies):
+    """L2-Hys normalisation of one block row, ``copies`` vectors of positions a call."""
+    from numba import njit, uint64
+
+    from fastdet.kernels import score
+
+    normalise = score._normalise_blocks(3, copies)
+    lanes = score._LANES
+
+    @njit
+    def walk(cells, energy, k, length, normalised, stride, second, eps_sq):
+        for p0 in range(0, stride, lanes * copies):
+            normalise(cells, uint64(0), uint64(9 * length), uint64(length), uint64(k),
+                      uint64(2), uint64(2), uint64(9), energy, uint64(0), uint64(length),
+                      uint64(p0), eps_sq, eps_sq, normalised, uint64(0), uint64(stride), second,
+                      uint64(0))
+
+    return walk
+
+
+def test_l2_hys_side_by_side_gives_each_blocks_bits():
+    """Two vectors of block positions normalised side by side (the scorer's
+    form) give exactly what one vector at a time gives."""
+    k, stride = 40, 64                    # positions of a phase; a row of whole vectors
+    length = 2 * k + stride               # room for the cells a block reads past p0
+    rng = np.random.default_rng(8)
+    cells = rng.random(2 * 9 * length).astype(np.float32)
+    energy = (cells.reshape(2, 9, length) ** 2).sum(axis=1).ravel().astype(np.float32)
+    eps_sq = np.float32(1e-10)
+    results = []
+    for copies in (1, 2):
+        normalised = np.full(36 * stride + 16, np.nan, np.float32)
+        second = np.full(stride + 16, np.nan, np.float32)
+        _normalise_walk(copies)(cells, energy, k, length, normalised, stride, second, eps_sq)
+        results.append((normalised[:36 * stride], second[:stride]))
+    for one, two in zip(*results):
+        np.testing.assert_array_equal(two, one)
+    assert np.isfinite(results[0][0]).all() and (results[0][0] <= np.float32(0.2)).all()
