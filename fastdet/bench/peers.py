@@ -231,8 +231,8 @@ class OpenCVPeer:
         self._stderr = open(folder / "stderr.txt", "w+")  # closed in close()
         self._process = subprocess.Popen(
             [str(python), str(self.peer_script), str(folder / "job.json")], cwd=folder,
-            env=opencv_peer_environment(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, text=True,
-            bufsize=1)
+            env=opencv_peer_environment(), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+            stderr=self._stderr, text=True, bufsize=1)
         self._reader = threading.Thread(target=self._read_replies, args=(self._process.stdout,),
                                         name="fastdet-opencv-peer", daemon=True)
         self._reader.start()
