@@ -538,7 +538,8 @@ def _normalise_blocks(norm_code, copies=1):
                            e_base, e_row_stride, p0, bias, hys_bias, normalised, n_base, stride,
                            second, s_base), codegen)
 
-    normalise.__name__ = normalise.__qualname__ = f"_normalise_blocks_{norm_code}_{copies}"
+    normalise.__name__ = normalise.__qualname__ = (
+        f"_normalise_blocks_{norm_code}" + (f"x{copies}" if copies > 1 else ""))
     return intrinsic(normalise)
 
 

@@ -210,7 +210,9 @@ def test_a_detection_compiles_only_the_variants_it_runs(tmp_path):
     assert "_hls_block" in " ".join(result["typed"]["_bgr_to_hls"])
     assert "_hls_scalar" not in " ".join(result["typed"]["_bgr_to_hls"])
     normalisers = [t for t in result["typed"]["_score_window_rows"] if "_normalise_blocks" in t]
-    assert normalisers == ["Function(<intrinsic _normalise_blocks_3>)"], normalisers
+    # L2-Hys one vector of positions at a time, and side by side; no other norm.
+    assert normalisers == ["Function(<intrinsic _normalise_blocks_3>)",
+                           "Function(<intrinsic _normalise_blocks_3x2>)"], normalisers
     colour = " ".join(result["typed"]["_colour_maps"])
     lookups = "_scalar_tile_row" in colour
     assert lookups != result["vector_tiles"], colour
