@@ -312,13 +312,45 @@ class ScaleScorer:
             self.score_windows(plan, first, stop, scores, timings)
             return
         # One kernel call for the cells, colour maps and scores: fewer GIL
-        # hand-overs (see fastdet.kernels.band).
-        converted, _ = self._scaled_rows(prepared, plan, top, bottom, timings)
-        cells, colour, windows = work.band(converted, converted[:work.covered_rows], top,
-                                           bottom, first, stop, scores)
+        # hand-overs (see fastdet.kernels.band).  Its arguments and the resize's
+        # are made once per task and arrays (the frame's converted band and the
+        # score grid are refilled in place from frame to frame): the Python
+        # between the kernels runs with the GIL held, which a thread scoring
+        # another frame waits for.
+        key = (first, stop, id(prepared.converted), prepared.origin, id(scores))
+        bound = work.bound_bands.get(key)
+        if bound is None:
+            bound = self._bind_band(prepared, plan, work, top, bottom, first, stop, scores)
+            if len(work.bound_bands) >= _MAX_BOUND_BANDS:
+                work.bound_bands.clear()   # arrays of frames that are gone
+            work.bound_bands[key] = bound
+        t0 = time.perf_counter()
+        if bound.resize is not None:
+            bound.resize[0](*bound.resize[1])
+        timings["resize_convert"] += time.perf_counter() - t0
+        cells, colour, windows = bound.band()
         timings["cells"] += cells
         timings["colour_maps"] += colour
         timings["blocks_score"] += windows
+
+    def _bind_band(self, prepared, plan, work, top, bottom, first, stop, scores):
+        """The resize and band kernel calls of :meth:`score_band`, made once (a
+        :class:`_BoundTask`; it keeps ``prepared.converted`` and ``scores``, whose
+        ids key it, alive)."""
+        ox, oy = prepared.origin
+        x0, y0, x1, y1 = plan.roi
+        region = prepared.converted[y0 - oy:y1 - oy, x0 - ox:x1 - ox]
+        width, height = plan.scaled_size
+        resize = None
+        if region.shape[:2] == (height, width) and region.flags.c_contiguous:
+            converted = region
+        else:
+            resizer = work.resizer(region.shape)
+            resize = resizer.bind(region, top - 1, bottom + 1)
+            converted = resizer.out
+        band = work.band.bind(converted, converted[:work.covered_rows], top, bottom, first,
+                              stop, scores)
+        return _BoundTask(resize, band, (prepared.converted, scores))
 
     def score_rows(self, prepared, plan, top, bottom, timings):
         """The features of scaled pixel rows ``top`` .. ``bottom - 1`` of a scale.
@@ -375,6 +407,19 @@ class ScaleScorer:
         timings["blocks_score"] += time.perf_counter() - t0
 
 
+#: Bound band calls a scale keeps (tasks x frame sizes' arrays); more are made again.
+_MAX_BOUND_BANDS = 32
+
+
+@dataclass
+class _BoundTask:
+    """A band task's resize (``(function, arguments)`` or None) and band kernel call."""
+
+    resize: tuple | None
+    band: object
+    keep: tuple   # the arrays whose ids key it
+
+
 def _longest_share(costs, threads):
     """The largest total a thread gets when each takes the costliest task left."""
     shares = [0] * threads
@@ -402,6 +447,7 @@ class _ScaleWork:
         self.plan = plan
         self._resized = {}
         self._resizers = {}
+        self.bound_bands = {}
         ppc = options.pixels_per_cell
         step_px = plan.step_cells * ppc
         width = plan.scaled_size[0]

@@ -32,6 +32,7 @@ families "hog", "score" and "colour".
 
 from __future__ import annotations
 
+import functools
 import time
 
 import numpy as np
@@ -61,6 +62,25 @@ def _features_and_scores(cells_kernel, cells_args, colour_kernel, colour_args, c
     stamps[2] = monotonic_ns(clock_id)
     call_compiled(windows_kernel, windows_args, None)
     stamps[3] = monotonic_ns(clock_id)
+
+
+class _BoundBand:
+    """One band kernel call with its arguments made (see :meth:`BandScorer.bind`)."""
+
+    __slots__ = ("arguments", "stamps")
+
+    def __init__(self, arguments):
+        self.arguments, self.stamps = arguments, arguments[-1]
+
+    def __call__(self):
+        _features_and_scores(*self.arguments)
+        start, cells_done, colour_done, end = self.stamps.tolist()
+        return ((cells_done - start) * 1e-9, (colour_done - cells_done) * 1e-9,
+                (end - colour_done) * 1e-9)
+
+
+def _no_band():
+    return 0.0, 0.0, 0.0
 
 
 #: What ``_colour_maps`` returns (the tile-sum path it took), as a value of its type:
@@ -136,24 +156,33 @@ class BandScorer:
         """
         if first >= stop:
             return 0.0, 0.0, 0.0
+        return self.bind(image, colour_image, top, bottom, first, stop, scores)()
+
+    def bind(self, image, colour_image, top, bottom, first, stop, scores):
+        """What ``self(image, colour_image, top, bottom, first, stop, scores)`` runs, as
+        a call without arguments that returns the same seconds.
+
+        A caller that scores the same rows of the same arrays, refilled in place,
+        frame after frame makes this once: the checks and argument tuples are
+        then not redone (Python run with the GIL held, which a thread scoring
+        another frame waits for).  Each call reads the arrays as they are then.
+        """
+        if first >= stop:
+            return _no_band
         ppc_y = self.cell_rows.pixels_per_cell[0]
         cells = self.cell_rows.call(image, top // ppc_y, bottom // ppc_y)
         colour = self.colour_rows.arguments(colour_image, top, bottom)
         windows = self.windows.arguments(scores, first, stop)
         if cells is None or colour is None or windows is None:
             # An edge with nothing to do in some stage: the calls one by one.
-            return self._one_by_one(cells, colour, windows)
+            return functools.partial(self._one_by_one, cells, colour, windows)
         key = (image.flags.writeable, image.flags.aligned, colour_image.flags.writeable,
                colour_image.flags.aligned, scores.flags.writeable, scores.flags.aligned)
         compiled = self._compiled.get(key)
         if compiled is None:
             compiled = self._compiled[key] = self.compile(cells[1], colour, windows)
-        stamps = np.empty(4, np.int64)
-        _features_and_scores(compiled[0], cells[1], compiled[1], colour, _COLOUR_RESULT,
-                             compiled[2], windows, MONOTONIC_CLOCK, stamps)
-        start, cells_done, colour_done, end = stamps.tolist()
-        return ((cells_done - start) * 1e-9, (colour_done - cells_done) * 1e-9,
-                (end - colour_done) * 1e-9)
+        return _BoundBand((compiled[0], cells[1], compiled[1], colour, _COLOUR_RESULT,
+                           compiled[2], windows, MONOTONIC_CLOCK, np.empty(4, np.int64)))
 
     @staticmethod
     def compile(cells_args, colour_args, windows_args):

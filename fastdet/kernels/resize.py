@@ -691,27 +691,45 @@ class RowResizer:
 
     def __call__(self, image, first, stop):
         """Resize rows ``first`` .. ``stop - 1`` of the result of ``image`` into :attr:`out`."""
+        call = self.bind(image, first, stop)
+        if call is not None:
+            call[0](*call[1])
+
+    def bind(self, image, first, stop):
+        """``(function, arguments)`` of what ``self(image, first, stop)`` runs, or None
+        when it resizes no row.
+
+        A caller that resizes the same rows of the same array, refilled in place,
+        frame after frame makes this once and calls ``function(*arguments)``: the
+        checks, views and table slices above the kernel are then not redone (Python
+        run with the GIL held, which a thread scoring another frame waits for).
+        Each call reads ``image`` as it is then (an image whose rows are not
+        contiguous is copied at each call, not once here).
+        """
         if image.shape != self.source_shape or image.dtype != np.uint8:
             raise ValueError(f"expected a uint8 image of shape {self.source_shape}, "
                              f"got {image.dtype} {image.shape}")
         height = self.out.shape[0]
         first, stop = max(0, int(first)), min(height, int(stop))
         if first >= stop:
-            return
+            return None
         if self._kind == "copy":
-            self.out[first:stop] = image[first:stop]
-            return
+            return np.copyto, (self.out[first:stop], image[first:stop])
         source_h, source_w, channels = self.source_shape
+        if image.strides[2] != 1 or image.strides[1] != channels:
+            # Its rows are not contiguous: reshaping would copy them, once.
+            return self._call_on_a_copy, (image, first, stop)
         # Rows of a column-sliced region stay contiguous: a (H, W * C) view.
         source = image.reshape(source_h, source_w * channels)
-        if source.strides[1] != 1:
-            source = np.ascontiguousarray(source)
         dest = self._rows[first:stop]
         if self._kind == "halve":
-            _halve(source[2 * first:2 * stop], channels, dest)
-            return
+            return _halve, (source[2 * first:2 * stop], channels, dest)
         y_tables = [table[first:stop] for table in self._y_tables]
         if self._path == NATIVE_PATH:
-            _resize(source, *self._x_tables, *y_tables, dest)
-        else:
-            _resize_path(self._path, source, *self._x_tables, *y_tables, dest)
+            return _resize, (source, *self._x_tables, *y_tables, dest)
+        return _resize_path, (self._path, source, *self._x_tables, *y_tables, dest)
+
+    def _call_on_a_copy(self, image, first, stop):
+        """``self(image, first, stop)`` through a contiguous copy of ``image``."""
+        function, arguments = self.bind(np.ascontiguousarray(image), first, stop)
+        function(*arguments)

@@ -448,3 +448,44 @@ def test_config_may_be_a_toml_file_and_nothing_else(random_model, tmp_path):
 def test_threads_must_be_a_whole_number(random_model, threads):
     with pytest.raises(InputError, match="threads must be a whole number"):
         Detector(random_model, threads=threads, preload=False)
+
+
+def test_bound_band_calls_follow_each_frame_and_size(random_model):
+    """The scorer makes each band task's kernel arguments once and reuses them
+    for the next frames (the converted band and the scores are refilled in
+    place): frames of two sizes, in turns, must score exactly as a fresh
+    detector scores each."""
+    rng = np.random.default_rng(12)
+    frames = [rng.integers(0, 256, shape, dtype=np.uint8)
+              for shape in ((720, 1280, 3), (540, 960, 3), (720, 1280, 3), (540, 960, 3))]
+    reused = Detector(model=random_model, threads=1)
+    for frame in frames + frames[::-1]:
+        expected = Detector(model=random_model, threads=1).hits(frame)
+        got = reused.hits(frame)
+        np.testing.assert_array_equal(got.scores, expected.scores)
+        np.testing.assert_array_equal(got.boxes, expected.boxes)
+    assert any(work.bound_bands for work in reused.scorer._workspace.values()
+               if isinstance(work, scoring._ScaleWork))
+
+
+def test_bound_band_calls_of_frames_that_are_gone_are_dropped(random_model):
+    # prepare() converts each frame into a new array: a band scored into the
+    # same score grid binds anew for each (a call bound to an earlier frame's
+    # array would score that frame), and a scale keeps at most
+    # _MAX_BOUND_BANDS of them.
+    detector = Detector(model=random_model, threads=1)
+    scorer = detector.scorer
+    plans = detector.plans((1280, 720))
+    plan = plans[0]
+    scores = np.empty(plan.grid, np.float32)
+    rng = np.random.default_rng(3)
+    for _ in range(scoring._MAX_BOUND_BANDS + 5):
+        frame = rng.integers(0, 256, (720, 1280, 3), dtype=np.uint8)
+        scores[...] = random_model.bias
+        scorer.score_band(scorer.prepare(frame, plans), plan, 0, plan.grid[0], scores,
+                          dict.fromkeys(scoring.STAGES, 0.0))
+        fresh = Detector(model=random_model, threads=1)
+        expected = fresh.scorer.score_scale(fresh.scorer.prepare(frame, plans), plan,
+                                            dict.fromkeys(scoring.STAGES, 0.0))
+        np.testing.assert_array_equal(scores, expected)
+    assert 0 < len(scorer._work(plan).bound_bands) <= scoring._MAX_BOUND_BANDS

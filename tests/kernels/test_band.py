@@ -151,3 +151,29 @@ def test_without_a_kernel_clock_the_scales_keep_their_three_calls(monkeypatch):
     monkeypatch.setattr(band_module, "MONOTONIC_CLOCK", None)
     scale = Scale(72, 96, 16, seed=1)
     assert not BandScorer.fits(scale.cell_rows, scale.colour_rows, scale.windows)
+
+
+def test_a_bound_band_scores_its_arrays_as_they_are_at_each_call():
+    """``BandScorer.bind`` is made once and called on every frame, its arrays
+    refilled in place: each call must compute what a fresh call computes."""
+    height, width, step_px = SCALES[0]
+    rows = window_count(height, WINDOW, step_px)
+    bound_scale, fresh = (Scale(height, width, step_px, seed=1) for _ in range(2))
+    top, bottom = bound_scale.rows(0, rows)
+    band = BandScorer(bound_scale.cell_rows, bound_scale.colour_rows, bound_scale.windows)
+    bound = band.bind(bound_scale.image, bound_scale.image[:bound_scale.covered], top, bottom,
+                      0, rows, bound_scale.scores)
+    rng = np.random.default_rng(4)
+    for _ in range(3):
+        pixels = rng.integers(0, 256, bound_scale.image.shape, dtype=np.uint8)
+        for scale in (bound_scale, fresh):
+            scale.image[...] = pixels
+            scale.scores[...] = np.float32(-0.5)
+        seconds = bound()
+        fresh.one_call(0, rows)
+        assert len(seconds) == len(STAGES) and min(seconds) >= 0
+        for name in ("cells", "tiles", "box", "scores"):
+            np.testing.assert_array_equal(getattr(bound_scale, name), getattr(fresh, name),
+                                          err_msg=name)
+    assert band.bind(bound_scale.image, bound_scale.image[:bound_scale.covered], top, bottom,
+                     2, 2, bound_scale.scores)() == (0.0, 0.0, 0.0)

@@ -135,3 +135,45 @@ def test_row_resizer_checks_its_image_and_array():
         resizer(np.zeros((40, 60, 3), np.float32), 0, 20)
     with pytest.raises(ValueError, match="out must be"):
         RowResizer((40, 60, 3), (30, 21), out)
+
+
+@pytest.mark.parametrize("source_shape, size", [
+    ((75, 203, 3), (101, 37)),    # linear
+    ((74, 202, 3), (101, 37)),    # halved exactly
+    ((36, 64, 3), (64, 36)),      # the same size: copied
+])
+@pytest.mark.parametrize("column_sliced", [True, False])
+def test_a_bound_resize_reads_its_image_as_it_is_at_each_call(source_shape, size,
+                                                             column_sliced):
+    """``bind`` is made once and called frame after frame on an image refilled in
+    place: each call must give what a fresh call on the image as it is gives."""
+    rng = np.random.default_rng(size[1])
+    frame = np.zeros((source_shape[0], source_shape[1] + 10, source_shape[2]), np.uint8)
+    region = frame[:, 3:3 + source_shape[1]] if column_sliced else frame[:, :source_shape[1]]
+    out = np.zeros((size[1], size[0], source_shape[2]), np.uint8)
+    resizer = RowResizer(region.shape, size, out)
+    function, arguments = resizer.bind(region, 4, size[1] - 3)
+    for _ in range(3):
+        frame[...] = rng.integers(0, 256, frame.shape, dtype=np.uint8)
+        out[...] = 0
+        function(*arguments)
+        expected = resize_linear(region, size)
+        np.testing.assert_array_equal(out[4:size[1] - 3], expected[4:size[1] - 3])
+        assert not out[:4].any() and not out[size[1] - 3:].any()
+    assert resizer.bind(region, 5, 5) is None
+
+
+def test_a_bound_resize_of_an_image_with_gaps_in_its_rows_copies_it_at_each_call():
+    # Every second column: the rows are not contiguous, so the kernel needs a
+    # copy; one made when binding would go stale as the image is refilled.
+    frame = np.zeros((75, 2 * 203, 3), np.uint8)
+    region = frame[:, ::2]
+    out = np.zeros((37, 101, 3), np.uint8)
+    resizer = RowResizer(region.shape, (101, 37), out)
+    function, arguments = resizer.bind(region, 0, 37)
+    rng = np.random.default_rng(2)
+    for _ in range(2):
+        frame[...] = rng.integers(0, 256, frame.shape, dtype=np.uint8)
+        function(*arguments)
+        np.testing.assert_array_equal(out, resize_linear(np.ascontiguousarray(region),
+                                                         (101, 37)))
