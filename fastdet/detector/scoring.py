@@ -172,13 +172,28 @@ class ScaleScorer:
         ``rows``: only these rows of the result are computed (see
         :func:`~fastdet.kernels.resize.resize_linear`).
         """
+        scaled, resize = self._scaled_region_call(region, plan, rows)
+        if resize is not None:
+            resize[0](*resize[1])
+        return scaled
+
+    def _scaled_region_call(self, region, plan, rows=None):
+        """``(scaled, resize)``: the array :meth:`scaled_region` returns, and the
+        ``(function, arguments)`` that fill its ``rows`` from ``region`` (None at
+        scale 1, where it is the region itself)."""
         width, height = plan.scaled_size
         if region.shape[:2] == (height, width) and region.flags.c_contiguous:
-            return region
+            return region, None
         # Bit-identical to cv2.resize(..., INTER_LINEAR), in about half its time.
         resizer = self._work(plan).resizer(region.shape)
-        resizer(region, *(rows or (0, height)))
-        return resizer.out
+        return resizer.out, resizer.bind(region, *(rows or (0, height)))
+
+    @staticmethod
+    def _region(prepared, plan):
+        """The slices of ``prepared``'s arrays that hold a scale's region."""
+        ox, oy = prepared.origin
+        x0, y0, x1, y1 = plan.roi
+        return slice(y0 - oy, y1 - oy), slice(x0 - ox, x1 - ox)
 
     # -- the colour-converted band ----------------------------------------------
     def prepare(self, frame, plans):
@@ -337,17 +352,8 @@ class ScaleScorer:
         """The resize and band kernel calls of :meth:`score_band`, made once (a
         :class:`_BoundTask`; it keeps ``prepared.converted`` and ``scores``, whose
         ids key it, alive)."""
-        ox, oy = prepared.origin
-        x0, y0, x1, y1 = plan.roi
-        region = prepared.converted[y0 - oy:y1 - oy, x0 - ox:x1 - ox]
-        width, height = plan.scaled_size
-        resize = None
-        if region.shape[:2] == (height, width) and region.flags.c_contiguous:
-            converted = region
-        else:
-            resizer = work.resizer(region.shape)
-            resize = resizer.bind(region, top - 1, bottom + 1)
-            converted = resizer.out
+        converted, resize = self._scaled_region_call(
+            prepared.converted[self._region(prepared, plan)], plan, (top - 1, bottom + 1))
         band = work.band.bind(converted, converted[:work.covered_rows], top, bottom, first,
                               stop, scores)
         return _BoundTask(resize, band, (prepared.converted, scores))
@@ -385,9 +391,7 @@ class ScaleScorer:
         ``bottom`` computed (the gradients of the outer cells need one row
         either side); ``grey`` None unless the HOG is grey."""
         t0 = time.perf_counter()
-        ox, oy = prepared.origin
-        x0, y0, x1, y1 = plan.roi
-        region = (slice(y0 - oy, y1 - oy), slice(x0 - ox, x1 - ox))
+        region = self._region(prepared, plan)
         rows = (top - 1, bottom + 1)
         converted = self.scaled_region(prepared.converted[region], plan, 3, rows)
         grey = None

@@ -154,8 +154,6 @@ class BandScorer:
         tuple of float
             Seconds of each of :data:`STAGES`.
         """
-        if first >= stop:
-            return 0.0, 0.0, 0.0
         return self.bind(image, colour_image, top, bottom, first, stop, scores)()
 
     def bind(self, image, colour_image, top, bottom, first, stop, scores):
