@@ -110,17 +110,15 @@ def check_frames_fit(video, count, size):
     Raises
     ------
     InputError
-        When the frames would need more than the memory Linux reports as available.
+        When the frames would need more than the memory the system reports as
+        available (``psutil``, as the batch layout reads it: Linux's MemAvailable).
     """
+    import psutil
+
     from ..errors import InputError
     from ..video.source import VideoSource
 
-    try:
-        with open("/proc/meminfo") as handle:
-            available = next(int(line.split()[1]) * 1024 for line in handle
-                             if line.startswith("MemAvailable:"))
-    except (OSError, StopIteration, ValueError):   # pragma: no cover - not Linux
-        return
+    available = psutil.virtual_memory().available
     if count is None:
         with VideoSource(video) as source:
             count = source.frame_count or 1
