@@ -148,6 +148,7 @@ def cmd_bench(args):
     from ..bench.scaling import SIZES, format_scaling, scaling_study
     from ..bench.scaling_plot import plot_scaling
     from ..bench.latency import format_stages, format_table, format_threads, run_benchmark
+    from ..bench.pipeline_processes import PipelineProcesses
     from ..bench.timing import TURN_FRAMES, read_frames
     from ..bench.two_cores import format_two_cores, two_core_ceiling
     from ..detector.config import load_config
@@ -242,7 +243,10 @@ def cmd_bench(args):
         log("timing two copies of one kernel at once against one alone ...")
         print("\n" + format_two_cores(two_core_ceiling(frames[0])))
         pipeline_rounds = args.rounds or 3
-        points = frame_level_study(frames, threads, pipeline_rounds, model, config, log=log)
+        points = frame_level_study(
+            frames, threads, pipeline_rounds, model, config, log=log,
+            processes=lambda looped_frames, count: PipelineProcesses(
+                looped_frames, count, args.model, args.config))
         passes = len(looped(frames))
         print(f"\n## The video pipeline: threads sharing each frame or scoring frames at once "
               f"(the {len(frames)} frames forward and back, {passes} a pass; default [track]; "
