@@ -77,6 +77,46 @@ def compile_order(names):
     return sorted(names, key=lambda name: (-COMPILE_WEIGHTS.get(name, 1.0), name))
 
 
+#: How a claims folder's name begins, in the temporary folder: then the
+#: process id of the process that made it (and removes it when done).
+CLAIMS_PREFIX = "fastdet-compile-"
+
+
+def remove_abandoned_claims(folder=None):
+    """Remove the claims folders (in ``folder``, default the temporary folder) of
+    processes that no longer run.
+
+    A process killed outright (SIGKILL, a lost machine) cannot remove its
+    claims at exit; the next cold start does.  Only this user's folders, only
+    those whose maker's process id is gone.
+    """
+    if os.name != "posix":  # os.kill(pid, 0) would end the process on Windows
+        return
+    folder = Path(folder or tempfile.gettempdir())
+    try:
+        entries = list(folder.glob(f"{CLAIMS_PREFIX}*-*"))
+    except OSError:
+        return
+    for entry in entries:
+        pid = entry.name[len(CLAIMS_PREFIX):].split("-", 1)[0]
+        try:
+            if not pid.isdigit() or entry.stat().st_uid != os.getuid() or _running(int(pid)):
+                continue
+        except OSError:  # gone meanwhile
+            continue
+        shutil.rmtree(entry, ignore_errors=True)
+
+
+def _running(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):  # another user's process, or no such id
+        return True
+    return True
+
+
 class FamilyClaims:
     """Which of two processes compiles which family: the first to claim it.
 
@@ -92,7 +132,10 @@ class FamilyClaims:
 
     def __init__(self, folder=None):
         self.owned = folder is None
-        self.folder = tempfile.mkdtemp(prefix="fastdet-compile-") if folder is None else folder
+        if folder is None:
+            remove_abandoned_claims()
+            folder = tempfile.mkdtemp(prefix=f"{CLAIMS_PREFIX}{os.getpid()}-")
+        self.folder = folder
 
     def claim(self, name):
         """Claim family ``name``; False if the other process has (or the claims are gone)."""

@@ -6,7 +6,9 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import threading
+from pathlib import Path
 
 import pytest
 
@@ -241,3 +243,29 @@ def test_a_relative_cache_folder_is_made_absolute(tmp_path, monkeypatch):
     monkeypatch.setenv(CACHE_ENV_VAR, "relative/cache")
     assert cache_base() == tmp_path / "relative" / "cache" / "kernels"
     assert cache_base().is_absolute()
+
+
+def test_claims_of_a_killed_process_are_removed_by_the_next_cold_start(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    # A process that made its claims and was killed outright (no atexit).
+    killed = subprocess.Popen([sys.executable, "-c",
+                               "import os, sys, time; from fastdet.compile_ahead import "
+                               "FamilyClaims; c = FamilyClaims(); c.claim('label'); "
+                               "print(c.folder, flush=True); time.sleep(60)"],
+                              stdout=subprocess.PIPE, text=True,
+                              env=dict(os.environ, TMPDIR=str(tmp_path)))
+    abandoned = Path(killed.stdout.readline().strip())
+    assert abandoned.parent == tmp_path and (abandoned / "label").exists()
+    assert abandoned.name.startswith(f"fastdet-compile-{killed.pid}-")
+    running = FamilyClaims()                     # this process's: its maker runs
+    killed.kill()
+    killed.wait()
+    killed.stdout.close()
+    unrelated = tmp_path / "fastdet-compile-notapid-x"
+    unrelated.mkdir()
+    assert abandoned.exists()
+    fresh = FamilyClaims()                       # the next cold start
+    assert not abandoned.exists()
+    assert os.path.isdir(running.folder) and os.path.isdir(fresh.folder) and unrelated.is_dir()
+    running.remove()
+    fresh.remove()
