@@ -22,6 +22,7 @@ passes (the same spell of a shared machine for both).
 from __future__ import annotations
 
 import argparse
+import collections
 import os
 import queue
 import shutil
@@ -53,7 +54,8 @@ class _Worker:
         self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                         stderr=subprocess.PIPE, env=env, text=True, bufsize=1)
         self.lines = queue.Queue()
-        self.errors = []
+        # Its last lines of stderr, for the error message (a chatty worker cannot fill memory).
+        self.errors = collections.deque(maxlen=100)
         threading.Thread(target=self._read, args=(self.process.stdout, self.lines.put),
                          daemon=True).start()
         threading.Thread(target=self._read, args=(self.process.stderr, self.errors.append),
