@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import cv2
-import pytest
-
 from fastdet.bench.frame_level import (MIN_PASS_FRAMES, PipelinePoint, format_frame_level,
                                        frame_level_study, looped, paired_speedup)
 
@@ -15,16 +12,6 @@ def test_looped_plays_the_frames_forward_and_back_to_the_length():
     assert looped(frames, 2) == frames
     assert looped([], 5) == []
     assert len(looped(list(range(38)))) == 304 >= MIN_PASS_FRAMES
-
-
-@pytest.fixture(scope="module")
-def small_frames(data_dir):
-    frames = []
-    for name in ("test1.jpg", "test4.jpg"):
-        image = cv2.imread(str(data_dir / "test_images" / name))
-        assert image is not None, f"missing {name} in {data_dir / 'test_images'}"
-        frames.append(cv2.resize(image, (640, 360)))
-    return frames
 
 
 def test_frame_level_study_times_each_way_over_looped_passes(small_frames):

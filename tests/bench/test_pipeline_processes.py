@@ -6,7 +6,6 @@ import sys
 import textwrap
 import time
 
-import cv2
 import numpy as np
 import pytest
 
@@ -14,16 +13,6 @@ import fastdet.bench.pipeline_processes as pipeline_processes
 from fastdet.bench.frame_level import (PipelinePoint, _points, format_frame_level,
                                        frame_level_study, looped)
 from fastdet.bench.pipeline_processes import PipelineProcesses, WorkerError, copies_ratio
-
-
-@pytest.fixture(scope="module")
-def small_frames(data_dir):
-    frames = []
-    for name in ("test1.jpg", "test4.jpg"):
-        image = cv2.imread(str(data_dir / "test_images" / name))
-        assert image is not None, f"missing {name} in {data_dir / 'test_images'}"
-        frames.append(cv2.resize(image, (640, 360)))
-    return frames
 
 
 def stand_in(tmp_path, body):
