@@ -115,6 +115,7 @@ def format_two_cores(ceiling):
             f"{cells['ratio']:.2f}x the work of one copy alone for the cell kernel "
             f"({cells['alone_ms']:.1f} ms alone, {cells['together_ms']:.1f} ms both at once) "
             f"and {chain['ratio']:.2f}x for a chain of dependent integer operations: "
-            f"fastdet's 2-thread speed-up cannot exceed about {cells['ratio']:.2f}x here "
-            f"(a low integer figure too: the host takes cycles; a low cell figure only: the "
-            f"two CPUs share one core's units).")
+            f"an in-cache kernel's 2-thread speed-up cannot exceed about {cells['ratio']:.2f}x "
+            f"here (a low integer figure too: the host takes cycles; a low cell figure only: "
+            f"the two CPUs share one core's units). The whole pipeline's own ceiling, caches "
+            f"and memory shared, is its processes row below.")

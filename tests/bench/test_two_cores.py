@@ -45,3 +45,5 @@ def test_ceiling_of_the_machine_kernels_runs_both_kernels():
         assert 0 < ceiling[kernel]["together_ms"] < 10_000
     line = format_two_cores(ceiling)
     assert f"{ceiling['cells']['ratio']:.2f}x the work of one copy alone" in line
+    assert line.endswith("The whole pipeline's own ceiling, caches and memory shared, is its "
+                         "processes row below.")
