@@ -112,7 +112,7 @@ def _running(pid):
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except (PermissionError, OverflowError, OSError):  # another user's process, or no such id
+    except (OSError, OverflowError):  # another user's process, or an id the OS refuses: keep
         return True
     return True
 

@@ -148,9 +148,10 @@ def frame_level_study(frames, threads=(1, 2), rounds=3, model=None, config=None,
 
 def _time_rounds(settings, pipelines, frames, rounds, log, wall, cpu, switches, workers=None,
                  copies=0):
-    """Round-robin passes of every setting (and of the worker processes, one alone,
-    then ``copies`` at once); returns the workers' rounds as ``(alone, at_once)``
-    pass results (see PipelineProcesses.passes)."""
+    """Round-robin passes of every setting into ``wall``, ``cpu`` and ``switches``
+    (and of the worker processes, one alone, then ``copies`` at once); returns
+    the workers' rounds, each ``(alone, at_once, at_once_cpu)``: lists of ms a
+    frame, one per worker timed."""
     together = []
     for round_index in range(rounds + 1):
         if round_index:

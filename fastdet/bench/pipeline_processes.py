@@ -11,8 +11,9 @@ pass as the benchmark's 1-thread row runs in ``n`` worker processes, which
 share no GIL: ``n`` passes at once against one alone is what this machine
 gives that job, and frames at once in one process are judged against it.
 
-Each worker (``python -m fastdet.bench.pipeline_processes FRAMES.npy``)
-loads the frames, runs one pass to load its kernels and fill its buffers,
+Each worker (``python -m fastdet.bench.pipeline_processes FRAMES.npy
+ORDER.npy``: each frame once, and the order to play them in) loads the
+frames, runs one pass to load its kernels and fill its buffers,
 says ``ready`` and then runs one pass per ``pass`` line it reads, answering
 with that pass's wall and CPU seconds.  The caller starts all workers' passes
 together, so a round of the benchmark can time them beside its in-process
