@@ -29,7 +29,6 @@ run (1.70-1.82x over 380 frames).
 from __future__ import annotations
 
 import statistics
-import time
 from dataclasses import dataclass
 
 try:
@@ -41,7 +40,7 @@ from ..detector.detector import Detector
 from ..video.config import TrackConfig
 from ..video.memory import reuse_freed_frames
 from ..video.pipeline import VideoPipeline
-from .pipeline_processes import WorkerError, copies_ratio
+from .pipeline_processes import WorkerError, copies_ratio, timed_pass
 
 
 #: Frames a timed pass holds at least (see :func:`looped`).
@@ -157,19 +156,14 @@ def _time_rounds(settings, pipelines, frames, rounds, log, wall, cpu, switches, 
         if round_index:
             log(f"pipeline round {round_index}/{rounds} ...")
         for key in settings:
-            pipeline = pipelines[key]
-            pipeline.reset()
             switches_before = _voluntary_switches()
-            started, cpu_started = time.perf_counter(), time.process_time()
-            for _ in pipeline(frames, workers=key[1]):
-                pass
-            ended, cpu_ended = time.perf_counter(), time.process_time()
+            wall_s, cpu_s = timed_pass(pipelines[key], frames, workers=key[1])
             slept = (None if switches_before is None
                      else _voluntary_switches() - switches_before)
             # Round 0 loads every kernel and fills every buffer: not kept.
             if round_index:
-                wall[key].append((ended - started) / len(frames) * 1e3)
-                cpu[key].append((cpu_ended - cpu_started) / len(frames) * 1e3)
+                wall[key].append(wall_s / len(frames) * 1e3)
+                cpu[key].append(cpu_s / len(frames) * 1e3)
                 if slept is not None:
                     switches[key].append(slept / len(frames))
         # The workers ran a first pass when they started.

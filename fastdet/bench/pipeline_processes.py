@@ -191,6 +191,16 @@ class PipelineProcesses:
         return answers
 
 
+def timed_pass(pipeline, frames, workers=1):
+    """Wall and CPU seconds of one pass of ``pipeline`` over ``frames``, from a reset
+    (the CPU time is the whole process's: every thread of a pass counts)."""
+    pipeline.reset()
+    started, cpu_started = time.perf_counter(), time.process_time()
+    for _ in pipeline(frames, workers=workers):
+        pass
+    return time.perf_counter() - started, time.process_time() - cpu_started
+
+
 def copies_ratio(alone, together):
     """Work per second of ``len(together)`` passes at once over one pass alone.
 
@@ -227,19 +237,12 @@ def _worker_main(argv=None):
                         threads=1)
     pipeline = VideoPipeline(detector, TrackConfig())
 
-    def one_pass():
-        pipeline.reset()
-        started, cpu_started = time.perf_counter(), time.process_time()
-        for _ in pipeline(frames, workers=1):
-            pass
-        return time.perf_counter() - started, time.process_time() - cpu_started
-
-    one_pass()
+    timed_pass(pipeline, frames)
     print("ready", flush=True)
     for line in sys.stdin:
         command = line.strip()
         if command == "pass":
-            wall, cpu = one_pass()
+            wall, cpu = timed_pass(pipeline, frames)
             print(f"{wall!r} {cpu!r}", flush=True)
         elif command == "quit":
             break
